@@ -1,0 +1,28 @@
+#pragma once
+// Output of `rsfm experiment table1` (format documented in docs/outputs.md):
+//   table1.csv    exactly: formulation,noise_px,m_t,sigma_t,m_q,sigma_q,r_s,r_c
+//   table1.md     the same next to the paper's numbers, plus every option and extra statistics
+//   fig1_data.csv trial-averaged estimates per frame (input of the figure)
+//   fig1.png/.svg the figure (matplotlib, scripts/plot_table1.py)
+#include <filesystem>
+#include <string>
+
+#include "rsfm/experiment/table1.hpp"
+
+namespace rsfm::io {
+
+std::string table1Csv(const Table1Result& r);
+std::string table1Markdown(const Table1Result& r, const std::string& command_line);
+std::string table1FigureData(const Table1Result& r);
+
+/// Python interpreter for the plots: $RSFM_PYTHON, else /usr/bin/python3.
+std::string pythonInterpreter();
+/// Directory of the plot scripts: $RSFM_SCRIPTS_DIR, else the source tree's scripts/.
+std::string scriptsDirectory();
+
+/// Writes all outputs into dir all-or-nothing; throws std::runtime_error with a one-line
+/// message (nothing is left behind on failure).
+void writeTable1Report(const Table1Result& r, const std::filesystem::path& dir,
+                       const std::string& command_line);
+
+}  // namespace rsfm::io

@@ -1,0 +1,71 @@
+#pragma once
+// The planar structure model of Alon & Sclaroff (seed 000 §3, eqs. 8-13).
+// State x = (t_X, t_Y, t_Z beta, omega_X, omega_Y, omega_Z, beta, N^1, ..., N^m): 7 + 3m
+// (m = 1 is the single-plane filter of eq. 8; m > 1 the rigid multi-plane state of eq. 13).
+// Plane j is N^j . X = 1 in the reference frame (origin on the image plane; unit normal
+// N/|N|, distance 1/|N|). Point i, labelled with plane l(i), observed first at (u, v):
+//   p = eta ((N_Z + beta) u, (N_Z + beta) v, 1 - N_X u - N_Y v),
+//   eta = 1 / (beta N_X u + beta N_Y v + N_Z)                            (eq. 12)
+// N . X = 1 cannot represent a plane through the image-plane origin: |N| > kMaxPlaneNorm is
+// reported as PlaneThroughOrigin; a ray (nearly) parallel to the plane as HorizonSingular.
+#include <Eigen/Core>
+#include <vector>
+
+#include "rsfm/ekf.hpp"
+#include "rsfm/models/projection.hpp"
+
+namespace rsfm {
+
+class PlaneModel {
+ public:
+  /// Points needed for one plane with unknown focal length (seed §3.1: 1 + 2N > 10).
+  static constexpr int kMinPoints = 5;
+  /// |N| above this (plane closer than 1e-9 units to the image-plane origin) is reported.
+  static constexpr double kMaxPlaneNorm = 1e9;
+  /// |eta| above this (ray within ~1e-9 of parallel to the plane) is reported.
+  static constexpr double kMaxEta = 1e9;
+
+  PlaneModel() = default;
+  /// `ref_uv`: first-frame normalized positions; `labels`: plane of each point (0..m-1).
+  PlaneModel(std::vector<Eigen::Vector2d> ref_uv, std::vector<int> labels, int num_planes = 1);
+
+  int numPoints() const { return static_cast<int>(ref_.size()); }
+  int numPlanes() const { return planes_; }
+  int stateDim() const { return 7 + 3 * planes_; }
+  static int planeIndex(int plane) { return 7 + 3 * plane; }
+  const Eigen::Vector2d& reference(int i) const { return ref_[i]; }
+  int label(int i) const { return labels_[i]; }
+
+  /// Adds a point seen first at `ref_uv` (reference-frame normalized coordinates) on `plane`.
+  int addPoint(const Eigen::Vector2d& ref_uv, int plane);
+
+  /// Validity of plane N for the ray through uv1 (see the class comment).
+  static MeasureStatus checkRay(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv1);
+
+  /// Reference-frame 3-D point of eq. 12 with dp/dbeta and dp/dN (3x3, columns N_X, N_Y, N_Z)
+  /// (seed appendix). Outputs may be null.
+  static MeasureStatus point(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv1,
+                             Eigen::Vector3d* p, Eigen::Vector3d* dp_dbeta,
+                             Eigen::Matrix3d* dp_dN);
+
+  /// Predicted measurement of point i and its Jacobian with respect to the whole state (2 x n).
+  MeasureStatus measure(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg, int i,
+                        Eigen::Vector2d* h, Eigen::MatrixXd* H) const;
+
+  /// Fast form: 2x7 motion block and 2x3 block of the point's plane.
+  MeasureStatus measure(const MotionContext& m, const Eigen::VectorXd& x, int i,
+                        Eigen::Vector2d* h, Eigen::Matrix<double, 2, 7>* Hm,
+                        Eigen::Matrix<double, 2, 3>* Hn) const;
+
+  /// Linearizes every observation: O(N). Failed predictions are left out and counted.
+  void linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
+                 const std::vector<Observation>& obs, double sigma, MeasurementBatch* batch,
+                 int* invalid, MeasureStatus* first_problem) const;
+
+ private:
+  std::vector<Eigen::Vector2d> ref_;
+  std::vector<int> labels_;
+  int planes_ = 1;
+};
+
+}  // namespace rsfm

@@ -1,0 +1,370 @@
+#include "rsfm/experiment/table1.hpp"
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <mutex>
+#include <sstream>
+#include <stdexcept>
+#include <thread>
+
+#include "rsfm/camera.hpp"
+#include "rsfm/geometry.hpp"
+#include "rsfm/models/plane_model.hpp"
+#include "rsfm/models/point_model.hpp"
+#include "rsfm/recursive_filter.hpp"
+
+namespace rsfm {
+namespace {
+
+constexpr double kRad2Deg = 180.0 / M_PI;
+
+/// Per-frame record of one filter in one trial.
+struct Track {
+  std::vector<Eigen::Vector3d> t;     // (t_X, t_Y, t_Z)
+  std::vector<double> t_zb;           // t_Z beta (state component)
+  std::vector<Eigen::Quaterniond> q;  // canonical
+  std::vector<Eigen::Vector3d> N;     // plane N (N . X = 1)
+  std::vector<double> beta;
+  std::vector<double> normal_err;     // radians
+  bool failed = false;
+  std::string failure;
+  double nees_static = 0.0;
+  double nis_per_dof_sum = 0.0;
+  int nis_frames = 0;
+  long gated = 0;
+};
+
+struct Job {
+  Track plane, point;
+};
+
+Eigen::VectorXd motionPrior(int n, double beta0) {
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(n);
+  x[idx::kBeta] = beta0;
+  return x;
+}
+
+template <class Model>
+void recordFrame(const RecursiveFilter<Model>& f, const Eigen::Vector3d& N, const Eigen::Vector3d& n_true,
+                 Track* tr) {
+  tr->t.push_back(f.translation());
+  tr->t_zb.push_back(f.ekf().x()[idx::kTzB]);
+  tr->q.push_back(canonical(Eigen::Quaterniond(f.rotation())));
+  tr->N.push_back(N);
+  tr->beta.push_back(f.beta());
+  tr->normal_err.push_back(normalAngle(N, n_true));
+}
+
+std::string failureText(int frame, const FrameStats& fs) {
+  std::ostringstream os;
+  os << "frame " << frame << ": " << describeHealth(fs.health);
+  return os.str();
+}
+
+/// Fitted plane of the point model's current 3-D points (seed §4: "fitting a plane").
+bool pointModelPlane(const RecursiveFilter<PointModel>& f, Eigen::Vector3d* N) {
+  const auto& x = f.ekf().x();
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < f.model().numPoints(); ++i)
+    pts.push_back(PointModel::point(f.model().reference(i), x[PointModel::alphaIndex(i)], f.beta()));
+  Eigen::Vector3d n;
+  double d;
+  return fitPlane(pts, &n, &d) && planeFromNormalOffset(n, d, N);
+}
+
+Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, std::uint64_t noise_seed) {
+  Job job;
+  std::mt19937_64 rng(noise_seed);
+  const auto uv = addUniformNoise(scene.uv, noise_px, o.scene.scale_px, rng);
+  const int F = o.scene.frames;
+  const int Np = static_cast<int>(scene.points.size());
+  const Eigen::Vector3d n_true = scene.unitNormal();
+  const double beta_true = o.scene.beta;
+
+  FilterOptions fo;
+  fo.reading = o.reading;
+  fo.sigma_uv = std::sqrt(o.r_scale) * std::max(noise_px, 1e-3) / o.scene.scale_px;
+  fo.q_motion << o.q_translation, o.q_translation, o.q_translation, o.q_omega, o.q_omega,
+      o.q_omega, o.q_beta;
+  fo.update.gate_probability = o.gate_probability;
+
+  // ---- plane filter (state 10) ----
+  {
+    PlaneModel model(uv[0], std::vector<int>(Np, 0), 1);
+    Eigen::VectorXd x0 = motionPrior(10, o.beta0);
+    x0.segment<3>(7) = o.N0;
+    Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(10, 10);
+    P0(idx::kBeta, idx::kBeta) = o.beta_var0;
+    std::vector<bool> fixed(10, false);
+    for (int j = 0; j < 3; ++j) {
+      P0(7 + j, 7 + j) = o.N_var0[j];
+      fixed[7 + j] = o.N_var0[j] == 0.0;  // the scale gauge (paper: N_Z)
+    }
+    RecursiveFilter<PlaneModel> f(std::move(model), Ekf(x0, P0, fixed), fo);
+    Track& tr = job.plane;
+    recordFrame(f, o.N0, n_true, &tr);
+    for (int k = 1; k <= F && !tr.failed; ++k) {
+      std::vector<Observation> obs(Np);
+      for (int i = 0; i < Np; ++i) obs[i] = {i, uv[k][i]};
+      const FrameStats fs = f.step(obs);
+      tr.gated += fs.update.gated;
+      if (fs.health != kHealthy || fs.invalid > 0) {
+        tr.failed = true;
+        tr.failure = "plane " + failureText(k, fs) +
+                     (fs.invalid ? std::string("; ") + std::string(toString(fs.first_problem)) : "");
+        break;
+      }
+      if (fs.update.applied && fs.update.nis_dof > 0) {
+        tr.nis_per_dof_sum += fs.update.nis / fs.update.nis_dof;
+        ++tr.nis_frames;
+      }
+      recordFrame(f, f.ekf().x().segment<3>(7), n_true, &tr);
+    }
+    if (!tr.failed) {
+      // NEES of the free static parameters (beta, N_X, N_Y) at the last frame.
+      const auto& x = f.ekf().x();
+      const Eigen::Vector3d e(x[6] - beta_true, x[7] - o.scene.plane.x(), x[8] - o.scene.plane.y());
+      const Eigen::Matrix3d Ps = f.ekf().P().block<3, 3>(6, 6);
+      Eigen::LDLT<Eigen::Matrix3d> l(Ps);
+      tr.nees_static = e.dot(l.solve(e));
+    }
+  }
+
+  // ---- point filter (state 7 + N) ----
+  {
+    PointModel model(uv[0]);
+    const int n = 7 + Np;
+    Eigen::VectorXd x0 = motionPrior(n, o.beta0);
+    Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(n, n);
+    P0(idx::kBeta, idx::kBeta) = o.beta_var0;
+    int gauge = o.point_gauge;
+    if (gauge < 0) {
+      double best = HUGE_VAL;
+      for (int i = 0; i < Np; ++i)
+        if (uv[0][i].norm() < best) best = uv[0][i].norm(), gauge = i;
+    }
+    std::vector<bool> fixed(n, false);
+    for (int i = 0; i < Np; ++i) {
+      Eigen::Vector3d p, dpb;
+      Eigen::Matrix3d dpN;
+      double alpha = 1.0 / o.N0.z(), var = o.alpha_var;
+      if (PlaneModel::point(o.N0, o.beta0, uv[0][i], &p, &dpb, &dpN) == MeasureStatus::Ok) {
+        if (o.alpha_init == "plane") alpha = p.z();
+        if (var <= 0.0) {
+          var = dpb.z() * dpb.z() * o.beta_var0;
+          for (int j = 0; j < 3; ++j) var += dpN(2, j) * dpN(2, j) * o.N_var0[j];
+        }
+      } else if (var <= 0.0) {
+        var = 0.1;
+      }
+      x0[7 + i] = alpha;
+      P0(7 + i, 7 + i) = var;
+    }
+    x0[7 + gauge] = scene.points[gauge].z();  // true depth: same scale as the plane's N_Z
+    fixed[7 + gauge] = true;
+    RecursiveFilter<PointModel> f(std::move(model), Ekf(x0, P0, fixed), fo);
+    Track& tr = job.point;
+    Eigen::Vector3d N;
+    if (!pointModelPlane(f, &N)) N = o.N0;
+    recordFrame(f, N, n_true, &tr);
+    for (int k = 1; k <= F && !tr.failed; ++k) {
+      std::vector<Observation> obs(Np);
+      for (int i = 0; i < Np; ++i) obs[i] = {i, uv[k][i]};
+      const FrameStats fs = f.step(obs);
+      tr.gated += fs.update.gated;
+      if (fs.health != kHealthy || fs.invalid > 0) {
+        tr.failed = true;
+        tr.failure = "point " + failureText(k, fs) +
+                     (fs.invalid ? std::string("; ") + std::string(toString(fs.first_problem)) : "");
+        break;
+      }
+      if (fs.update.applied && fs.update.nis_dof > 0) {
+        tr.nis_per_dof_sum += fs.update.nis / fs.update.nis_dof;
+        ++tr.nis_frames;
+      }
+      if (!pointModelPlane(f, &N)) {
+        tr.failed = true;
+        tr.failure = "point frame " + std::to_string(k) + ": plane fit failed";
+        break;
+      }
+      recordFrame(f, N, n_true, &tr);
+    }
+  }
+  return job;
+}
+
+int convergenceFrame(const std::vector<double>& err, double tol) {
+  // First frame from which err stays <= tol through the last frame; -1 if never.
+  int r = -1;
+  for (int k = static_cast<int>(err.size()) - 1; k >= 0; --k) {
+    if (!(err[k] <= tol)) break;
+    r = k;
+  }
+  return r;
+}
+
+void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vector<const Track*>& tracks,
+               const std::string& name, double noise, Table1Row* row, Table1Series* ser) {
+  const int F = o.scene.frames;
+  row->formulation = ser->formulation = name;
+  row->noise_px = ser->noise_px = noise;
+  row->trials = static_cast<int>(tracks.size());
+  std::vector<const Track*> ok;
+  for (const Track* t : tracks) {
+    if (t->failed) {
+      if (row->failed == 0) row->first_failure = t->failure;
+      ++row->failed;
+    } else {
+      ok.push_back(t);
+    }
+    row->gated += t->gated;
+  }
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  if (ok.empty()) {
+    row->m_t = row->sigma_t = row->m_q = row->sigma_q = nan;
+    row->final_normal_err_deg = row->final_beta_err_pct = nan;
+    return;
+  }
+  const double K = static_cast<double>(ok.size());
+  double st = 0, st2 = 0, sq = 0, sq2 = 0, nis = 0;
+  long ct = 0, cq = 0, nisn = 0;
+  for (auto* v : {&ser->t_x, &ser->t_zb, &ser->q0, &ser->q2, &ser->n_x, &ser->n_y, &ser->beta,
+                  &ser->normal_err_deg})
+    v->assign(F + 1, 0.0);
+  for (const Track* t : ok) {
+    for (int k = 0; k <= F; ++k) {
+      const Eigen::Quaterniond qt = canonical(Eigen::Quaterniond(scene0.R[k]));
+      if (k > 0) {
+        const Eigen::Vector3d et = t->t[k] - scene0.t[k];
+        for (int j = 0; j < 3; ++j) st += et[j], st2 += et[j] * et[j], ++ct;
+        const Eigen::Vector4d eq = t->q[k].coeffs() - qt.coeffs();
+        for (int j = 0; j < 4; ++j) sq += eq[j], sq2 += eq[j] * eq[j], ++cq;
+      }
+      ser->t_x[k] += t->t[k].x() / K;
+      ser->t_zb[k] += t->t_zb[k] / K;
+      ser->q0[k] += t->q[k].w() / K;
+      ser->q2[k] += t->q[k].y() / K;
+      ser->n_x[k] += t->N[k].x() / K;
+      ser->n_y[k] += t->N[k].y() / K;
+      ser->beta[k] += t->beta[k] / K;
+      ser->normal_err_deg[k] += t->normal_err[k] * kRad2Deg / K;
+    }
+    row->final_normal_err_deg += t->normal_err[F] * kRad2Deg / K;
+    row->final_beta_err_pct += 100.0 * std::abs(t->beta[F] - o.scene.beta) / o.scene.beta / K;
+    row->nees_static += t->nees_static / K;
+    nis += t->nis_per_dof_sum;
+    nisn += t->nis_frames;
+  }
+  row->m_t = st / ct;
+  row->sigma_t = std::sqrt(st2 / ct);
+  row->m_q = sq / cq;
+  row->sigma_q = std::sqrt(sq2 / cq);
+  row->mean_nis_per_dof = nisn ? nis / nisn : nan;
+  row->nees_dof = name == "plane" ? 3 : 0;
+  if (name != "plane") row->nees_static = 0;
+  // Convergence on the trial-averaged estimates (the curves of Fig. 1).
+  std::vector<double> nerr(F + 1), berr(F + 1);
+  std::vector<Eigen::Vector3d> Nm(F + 1, Eigen::Vector3d::Zero());
+  for (const Track* t : ok)
+    for (int k = 0; k <= F; ++k) Nm[k] += t->N[k] / K;
+  for (int k = 0; k <= F; ++k) {
+    nerr[k] = normalAngle(Nm[k], scene0.unitNormal()) * kRad2Deg;
+    berr[k] = std::abs(ser->beta[k] - o.scene.beta) / o.scene.beta;
+  }
+  row->r_s = convergenceFrame(nerr, 0.5);
+  row->r_c = convergenceFrame(berr, 0.05);
+}
+
+}  // namespace
+
+std::string validateTable1Options(const Table1Options& o) {
+  if (o.trials < 1) return "--trials must be at least 1";
+  if (o.noise_px.empty()) return "at least one noise level is required";
+  for (double s : o.noise_px)
+    if (!(s >= 0.0) || !std::isfinite(s)) return "noise levels must be finite and non-negative";
+  if (o.scene.frames < 1) return "--frames must be at least 1";
+  if (o.scene.points < PointModel::kMinPoints)
+    return "--points must be at least 7 (A&P need 7 points; the plane model 5)";
+  if (!(o.scene.scale_px > 0.0)) return "--scale-px must be positive";
+  if (!(std::abs(o.scene.deg_per_frame * o.scene.frames) < 60.0))
+    return "total rotation (--deg-per-frame x --frames) must stay under 60 degrees";
+  if (!(o.beta0 > 0.0)) return "--beta0 must be positive";
+  if (!(o.beta_var0 >= 0.0)) return "--beta-var must be non-negative";
+  for (double q : {o.q_translation, o.q_omega, o.q_beta})
+    if (!(q >= 0.0) || !std::isfinite(q)) return "process variances must be finite and non-negative";
+  if (!(o.r_scale > 0.0)) return "--r-scale must be positive";
+  if (o.alpha_init != "plane" && o.alpha_init != "constant")
+    return "--alpha-init must be 'plane' or 'constant'";
+  if (o.point_gauge >= o.scene.points) return "--point-gauge must be below --points";
+  if (o.threads < 0) return "--threads must be non-negative";
+  return {};
+}
+
+Table1Result runTable1(const Table1Options& o) {
+  if (auto msg = validateTable1Options(o); !msg.empty()) throw std::invalid_argument(msg);
+  const auto t0 = std::chrono::steady_clock::now();
+  Table1Result res;
+  res.options = o;
+  const int L = static_cast<int>(o.noise_px.size());
+  const int T = o.trials;
+  // Scenes: one per trial, shared by all noise levels and both formulations.
+  std::vector<Table1Scene> scenes;
+  for (int i = 0; i < T; ++i) {
+    std::mt19937_64 rng(mixSeed(o.seed, static_cast<std::uint64_t>(i)));
+    scenes.push_back(makeTable1Scene(o.scene, rng));
+  }
+  std::vector<Job> jobs(static_cast<size_t>(L) * T);
+  std::atomic<int> next{0}, done{0};
+  std::mutex mu;
+  int nthreads = o.threads > 0 ? o.threads : static_cast<int>(std::thread::hardware_concurrency());
+  nthreads = std::clamp(nthreads, 1, L * T);
+  auto worker = [&] {
+    for (int j; (j = next.fetch_add(1)) < L * T;) {
+      const int l = j / T, i = j % T;
+      jobs[j] = runJob(o, scenes[i], o.noise_px[l],
+                       mixSeed(o.seed, static_cast<std::uint64_t>(i), static_cast<std::uint64_t>(l) + 1));
+      const int d = ++done;
+      if (o.progress) {
+        std::lock_guard<std::mutex> lk(mu);
+        o.progress(d, L * T);
+      }
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int k = 0; k < nthreads; ++k) pool.emplace_back(worker);
+  for (auto& th : pool) th.join();
+
+  // Truth series (the scene's motion is the same in every trial).
+  const Table1Scene& s0 = scenes[0];
+  for (int k = 0; k <= o.scene.frames; ++k) {
+    const Eigen::Quaterniond q = canonical(Eigen::Quaterniond(s0.R[k]));
+    res.truth.t_x.push_back(s0.t[k].x());
+    res.truth.t_zb.push_back(s0.t[k].z() * o.scene.beta);
+    res.truth.q0.push_back(q.w());
+    res.truth.q2.push_back(q.y());
+  }
+  res.truth.n_x = o.scene.plane.x();
+  res.truth.n_y = o.scene.plane.y();
+  res.truth.beta = o.scene.beta;
+
+  for (const std::string name : {"plane", "point"})
+    for (int l = 0; l < L; ++l) {
+      std::vector<const Track*> tracks;
+      for (int i = 0; i < T; ++i) {
+        const Job& jb = jobs[static_cast<size_t>(l) * T + i];
+        tracks.push_back(name == "plane" ? &jb.plane : &jb.point);
+      }
+      Table1Row row;
+      Table1Series ser;
+      aggregate(o, s0, tracks, name, o.noise_px[l], &row, &ser);
+      res.rows.push_back(row);
+      res.series.push_back(ser);
+    }
+  res.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return res;
+}
+
+}  // namespace rsfm

@@ -1,0 +1,116 @@
+#include "rsfm/models/plane_model.hpp"
+
+#include <cmath>
+#include <stdexcept>
+
+namespace rsfm {
+
+PlaneModel::PlaneModel(std::vector<Eigen::Vector2d> ref_uv, std::vector<int> labels,
+                       int num_planes)
+    : ref_(std::move(ref_uv)), labels_(std::move(labels)), planes_(num_planes) {
+  if (labels_.size() != ref_.size())
+    throw std::invalid_argument("PlaneModel: one label per point is required");
+  for (int l : labels_)
+    if (l < 0 || l >= planes_) throw std::invalid_argument("PlaneModel: plane label out of range");
+}
+
+int PlaneModel::addPoint(const Eigen::Vector2d& ref_uv, int plane) {
+  if (plane < 0 || plane >= planes_) throw std::invalid_argument("PlaneModel: bad plane label");
+  ref_.push_back(ref_uv);
+  labels_.push_back(plane);
+  return numPoints() - 1;
+}
+
+MeasureStatus PlaneModel::checkRay(const Eigen::Vector3d& N, double beta,
+                                   const Eigen::Vector2d& uv) {
+  if (!N.allFinite() || !std::isfinite(beta) || !uv.allFinite()) return MeasureStatus::NonFinite;
+  if (!(N.norm() < kMaxPlaneNorm)) return MeasureStatus::PlaneThroughOrigin;
+  const double den = beta * (N.x() * uv.x() + N.y() * uv.y()) + N.z();
+  if (!(std::abs(den) * kMaxEta > 1.0)) return MeasureStatus::HorizonSingular;
+  return MeasureStatus::Ok;
+}
+
+MeasureStatus PlaneModel::point(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv,
+                                Eigen::Vector3d* p, Eigen::Vector3d* dp_dbeta,
+                                Eigen::Matrix3d* dp_dN) {
+  const MeasureStatus s = checkRay(N, beta, uv);
+  if (s != MeasureStatus::Ok) return s;
+  const double u = uv.x(), v = uv.y();
+  const double a = N.x() * u + N.y() * v;  // N_X u + N_Y v
+  const double g = 1.0 - a;
+  const double eta = 1.0 / (beta * a + N.z());
+  const double nb = N.z() + beta;
+  const Eigen::Vector3d pt(eta * nb * u, eta * nb * v, eta * g);
+  if (!(1.0 + beta * pt.z() > 1e-12)) return MeasureStatus::BehindCamera;
+  if (p) *p = pt;
+  const double e2 = eta * eta;
+  if (dp_dbeta) *dp_dbeta = e2 * g * Eigen::Vector3d(N.z() * u, N.z() * v, -a);
+  if (dp_dN) {
+    const Eigen::Vector3d ray(u * beta, v * beta, 1.0);
+    dp_dN->col(0) = -e2 * u * nb * ray;
+    dp_dN->col(1) = -e2 * v * nb * ray;
+    dp_dN->col(2) = -e2 * g * ray;
+  }
+  return MeasureStatus::Ok;
+}
+
+MeasureStatus PlaneModel::measure(const MotionContext& m, const Eigen::VectorXd& x, int i,
+                                  Eigen::Vector2d* h, Eigen::Matrix<double, 2, 7>* Hm,
+                                  Eigen::Matrix<double, 2, 3>* Hn) const {
+  const Eigen::Vector3d N = x.segment<3>(planeIndex(labels_[i]));
+  Eigen::Vector3d p, dpb;
+  Eigen::Matrix3d dpN;
+  MeasureStatus s = point(N, m.beta, ref_[i], &p, &dpb, &dpN);
+  if (s != MeasureStatus::Ok) return s;
+  Eigen::Matrix<double, 2, 3> dhdp;
+  s = projectWithJacobian(m, p, dpb, h, Hm, Hn ? &dhdp : nullptr);
+  if (s == MeasureStatus::Ok && Hn) *Hn = dhdp * dpN;
+  return s;
+}
+
+MeasureStatus PlaneModel::measure(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg, int i,
+                                  Eigen::Vector2d* h, Eigen::MatrixXd* H) const {
+  const MotionContext m = MotionContext::fromState(x, Rg);
+  Eigen::Matrix<double, 2, 7> Hm;
+  Eigen::Matrix<double, 2, 3> Hn;
+  const MeasureStatus s = measure(m, x, i, h, H ? &Hm : nullptr, H ? &Hn : nullptr);
+  if (s == MeasureStatus::Ok && H) {
+    H->setZero(2, x.size());
+    H->leftCols<7>() = Hm;
+    H->block<2, 3>(0, planeIndex(labels_[i])) = Hn;
+  }
+  return s;
+}
+
+void PlaneModel::linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
+                           const std::vector<Observation>& obs, double sigma,
+                           MeasurementBatch* batch, int* invalid,
+                           MeasureStatus* first_problem) const {
+  const MotionContext m = MotionContext::fromState(x, Rg);
+  const int n = static_cast<int>(x.size());
+  batch->resize(static_cast<int>(obs.size()), n, 2);
+  *invalid = 0;
+  *first_problem = MeasureStatus::Ok;
+  int b = 0;
+  for (const Observation& o : obs) {
+    Eigen::Vector2d h;
+    Eigen::Matrix<double, 2, 7> Hm;
+    Eigen::Matrix<double, 2, 3> Hn;
+    const MeasureStatus s = measure(m, x, o.id, &h, &Hm, &Hn);
+    if (s != MeasureStatus::Ok || !o.uv.allFinite()) {
+      if (*invalid == 0) *first_problem = s == MeasureStatus::Ok ? MeasureStatus::NonFinite : s;
+      ++*invalid;
+      continue;
+    }
+    batch->residual.segment<2>(2 * b) = o.uv - h;
+    batch->H.block<2, 7>(2 * b, 0) = Hm;
+    batch->H.block<2, 3>(2 * b, planeIndex(labels_[o.id])) = Hn;
+    batch->R.block<2, 2>(2 * b, 0) = Eigen::Matrix2d::Identity() * sigma * sigma;
+    ++b;
+  }
+  batch->residual.conservativeResize(2 * b);
+  batch->H.conservativeResize(2 * b, Eigen::NoChange);
+  batch->R.conservativeResize(2 * b, Eigen::NoChange);
+}
+
+}  // namespace rsfm
