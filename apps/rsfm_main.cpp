@@ -63,9 +63,13 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   t1->add_option("--q-omega", o.q_omega, "process variance of omega per frame")->capture_default_str();
   t1->add_option("--q-beta", o.q_beta, "process variance of beta per frame")->capture_default_str();
+  t1->add_option("--q-structure", o.q_structure, "process variance of structure per frame")
+      ->capture_default_str();
   t1->add_option("--r-scale", o.r_scale, "filter measurement variance / true noise variance")
       ->capture_default_str();
   t1->add_option("--gate", o.gate_probability, "chi-square gate probability per point (0: off)")
+      ->capture_default_str();
+  t1->add_option("--iterations", o.iterations, "update iterations (1: EKF, >1: iterated EKF)")
       ->capture_default_str();
   t1->add_option("--alpha-init", o.alpha_init, "point model initial depths: plane | constant")
       ->capture_default_str();
@@ -74,6 +78,9 @@ int main(int argc, char** argv) {
   t1->add_option("--point-gauge", o.point_gauge, "index of the point model's fixed depth (-1: centre)")
       ->capture_default_str();
   t1->add_option("--threads", o.threads, "worker threads (0: all cores)")->capture_default_str();
+  t1->add_option("--reference-noise", o.reference_noise,
+                 "add noise to the reference frame too (true/false)")
+      ->capture_default_str();
   t1->add_flag("--quiet", quiet, "no progress on stderr");
 
   try {

@@ -24,11 +24,18 @@ struct FilterOptions {
   /// Per-frame process variance of every free structure component (0: static structure).
   double q_structure = 0.0;
   UpdateOptions update;  ///< gating, update form, minimum points (set from the model)
+  /// Iterated EKF: maximum Gauss-Newton iterations of the measurement update (1 = plain EKF).
+  /// Each iteration relinearizes h at the latest iterate x_i and applies
+  /// x_{i+1} = x^- + K_i (z - h(x_i) - H_i (x^- - x_i)); P from the last linearization.
+  int iterations = 1;
+  /// Stop iterating when the step |x_{i+1} - x_i| (infinity norm, state units) falls below this.
+  double iteration_tol = 1e-9;
 };
 
 /// What one frame did.
 struct FrameStats {
   UpdateStats update;
+  int iterations = 0;  ///< measurement linearizations used (1 for the plain EKF)
   int invalid = 0;  ///< observations whose prediction failed (see MeasureStatus), not used
   MeasureStatus first_problem = MeasureStatus::Ok;
   std::uint32_t health = kHealthy;  ///< EKF health after the step (HealthFlag bits)
@@ -50,7 +57,33 @@ class RecursiveFilter {
     ekf_.predict(q);
     MeasurementBatch batch;
     model_.linearize(ekf_.x(), Rg_, obs, opt_.sigma_uv, &batch, &fs.invalid, &fs.first_problem);
-    fs.update = ekf_.update(batch, opt_.update);
+    if (opt_.iterations <= 1) {
+      fs.iterations = 1;
+      fs.update = ekf_.update(batch, opt_.update);
+    } else {
+      // Iterated EKF (Gauss-Newton on the measurement): the prior (x^-, P^-) is restored before
+      // each relinearized update, whose residual is shifted by H_i (x_i - x^-).
+      const Eigen::VectorXd x_prior = ekf_.x();
+      const Eigen::MatrixXd P_prior = ekf_.P();
+      Eigen::VectorXd xi = x_prior;
+      for (int it = 0; it < opt_.iterations; ++it) {
+        if (it > 0) {
+          int invalid = 0;
+          MeasureStatus problem = MeasureStatus::Ok;
+          model_.linearize(xi, Rg_, obs, opt_.sigma_uv, &batch, &invalid, &problem);
+          if (invalid > fs.invalid) break;  // the iterate left the valid region: keep the last
+          batch.residual += batch.H * (xi - x_prior);
+          ekf_.mutableX() = x_prior;
+          ekf_.mutableP() = P_prior;
+        }
+        fs.update = ekf_.update(batch, opt_.update);
+        fs.iterations = it + 1;
+        if (!fs.update.applied) break;
+        const double step = (ekf_.x() - xi).cwiseAbs().maxCoeff();
+        xi = ekf_.x();
+        if (!(step > opt_.iteration_tol)) break;
+      }
+    }
     fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
     const Eigen::Vector3d omega = ekf_.x().template segment<3>(idx::kWx);
     if (!incrementalRotationValid(omega)) {

@@ -78,7 +78,8 @@ bool pointModelPlane(const RecursiveFilter<PointModel>& f, Eigen::Vector3d* N) {
 Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, std::uint64_t noise_seed) {
   Job job;
   std::mt19937_64 rng(noise_seed);
-  const auto uv = addUniformNoise(scene.uv, noise_px, o.scene.scale_px, rng);
+  auto uv = addUniformNoise(scene.uv, noise_px, o.scene.scale_px, rng);
+  if (!o.reference_noise) uv[0] = scene.uv[0];
   const int F = o.scene.frames;
   const int Np = static_cast<int>(scene.points.size());
   const Eigen::Vector3d n_true = scene.unitNormal();
@@ -89,6 +90,8 @@ Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, st
   fo.sigma_uv = std::sqrt(o.r_scale) * std::max(noise_px, 1e-3) / o.scene.scale_px;
   fo.q_motion << o.q_translation, o.q_translation, o.q_translation, o.q_omega, o.q_omega,
       o.q_omega, o.q_beta;
+  fo.q_structure = o.q_structure;
+  fo.iterations = o.iterations;
   fo.update.gate_probability = o.gate_probability;
 
   // ---- plane filter (state 10) ----
@@ -293,13 +296,14 @@ std::string validateTable1Options(const Table1Options& o) {
     return "total rotation (--deg-per-frame x --frames) must stay under 60 degrees";
   if (!(o.beta0 > 0.0)) return "--beta0 must be positive";
   if (!(o.beta_var0 >= 0.0)) return "--beta-var must be non-negative";
-  for (double q : {o.q_translation, o.q_omega, o.q_beta})
+  for (double q : {o.q_translation, o.q_omega, o.q_beta, o.q_structure})
     if (!(q >= 0.0) || !std::isfinite(q)) return "process variances must be finite and non-negative";
   if (!(o.r_scale > 0.0)) return "--r-scale must be positive";
   if (o.alpha_init != "plane" && o.alpha_init != "constant")
     return "--alpha-init must be 'plane' or 'constant'";
   if (o.point_gauge >= o.scene.points) return "--point-gauge must be below --points";
   if (o.threads < 0) return "--threads must be non-negative";
+  if (o.iterations < 1) return "--iterations must be at least 1";
   return {};
 }
 

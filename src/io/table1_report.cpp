@@ -117,7 +117,10 @@ std::string table1Markdown(const Table1Result& r, const std::string& command_lin
   opt("--q-trans", fmt::format("{:g}", o.q_translation), "per-frame process variance of t_X, t_Y, t_Z beta");
   opt("--q-omega", fmt::format("{:g}", o.q_omega), "per-frame process variance of each omega component");
   opt("--q-beta", fmt::format("{:g}", o.q_beta), "per-frame process variance of beta");
+  opt("--q-structure", fmt::format("{:g}", o.q_structure), "per-frame process variance of each free structure component (N_X, N_Y; alpha_i)");
+  opt("--reference-noise", o.reference_noise ? "true" : "false", "noise on the reference frame too (its noisy positions are the filters' first-frame coordinates)");
   opt("--r-scale", fmt::format("{:g}", o.r_scale), "R = r-scale x (noise/s)^2: measurement variance used by the filters");
+  opt("--iterations", std::to_string(o.iterations), "measurement-update iterations (1 = EKF, > 1 = iterated EKF)");
   opt("--gate", fmt::format("{:g}", o.gate_probability), "per-point chi-square gate probability (0 disables)");
   opt("--alpha-init", o.alpha_init, "point model initial depths: from the initial plane (plane) or the plane's axis depth (constant)");
   opt("--alpha-var", o.alpha_var > 0 ? fmt::format("{:g}", o.alpha_var) : "propagate", "point model initial depth variance (propagate: implied by the plane prior)");

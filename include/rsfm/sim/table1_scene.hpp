@@ -14,7 +14,8 @@ namespace rsfm {
 struct Table1SceneOptions {
   int frames = 100;              ///< frames after the reference frame 0 (frames 0..frames)
   int points = 30;               ///< points on the plane
-  double deg_per_frame = -0.3;   ///< rotation about y per frame (deg); total 30 deg, toward frontal
+  double deg_per_frame = -0.5;   ///< rotation about y per frame (deg); 50 deg total: the plane's
+                                 ///< normal goes from 30 deg off-axis through frontal to 20 deg
   Eigen::Vector3d centre{0.0, 0.0, 2.0};  ///< point on the rotation axis (A&P coordinates)
   Eigen::Vector3d plane{2.0 / 1.7320508075688772, 0.0, 2.0};  ///< true N (N . X = 1)
   double beta = 1.0;             ///< true inverse focal length (normalized units)
