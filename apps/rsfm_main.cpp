@@ -83,6 +83,28 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   t1->add_flag("--quiet", quiet, "no progress on stderr");
 
+  // Name an unknown command word explicitly (CLI11 would only say a subcommand is required).
+  {
+    CLI::App* cur = &app;
+    std::string path = "rsfm";
+    for (int i = 1; i < argc; ++i) {
+      const std::string word = argv[i];
+      if (word.empty() || word[0] == '-') break;
+      const auto subs = cur->get_subcommands([](CLI::App*) { return true; });
+      if (subs.empty()) break;
+      CLI::App* next = nullptr;
+      std::string names;
+      for (CLI::App* sc : subs) {
+        names += (names.empty() ? "" : ", ") + sc->get_name();
+        if (sc->get_name() == word) next = sc;
+      }
+      if (!next)
+        return fail(kBadInput, "unknown command '" + word + "' for '" + path + "' (expected one of: " + names + ")");
+      cur = next;
+      path += " " + word;
+    }
+  }
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -1,0 +1,91 @@
+// One measurement update (linearize all points + EKF update) of the plane and point models.
+// The plane model's update is O(N) (information form, state size fixed at 10): its time per
+// point, reported as the counter "time_per_point", stays flat as N grows. The point model's state
+// grows with N (7 + N), so its update is O(N^3).
+//   build/rsfm_bench --benchmark_counters_tabular=true
+#include <benchmark/benchmark.h>
+
+#include <random>
+
+#include "rsfm/models/plane_model.hpp"
+#include "rsfm/models/point_model.hpp"
+#include "rsfm/recursive_filter.hpp"
+
+namespace {
+
+using namespace rsfm;
+
+struct Setup {
+  std::vector<Eigen::Vector2d> ref;
+  std::vector<Observation> obs;
+};
+
+Setup makeSetup(int n) {
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> U(-0.8, 0.8);
+  std::normal_distribution<double> N(0.0, 2.0 / 256.0);
+  Setup s;
+  for (int i = 0; i < n; ++i) {
+    s.ref.emplace_back(U(rng), U(rng));
+    s.obs.push_back({i, s.ref.back() + Eigen::Vector2d(0.01 + N(rng), N(rng))});
+  }
+  return s;
+}
+
+FilterOptions options() {
+  FilterOptions fo;
+  fo.q_motion << 3e-4, 3e-4, 3e-4, 1e-4, 1e-4, 1e-4, 0.0;
+  return fo;
+}
+
+void BM_PlaneUpdate(benchmark::State& state) {
+  const int n = static_cast<int>(state.range(0));
+  const Setup s = makeSetup(n);
+  Eigen::VectorXd x0 = Eigen::VectorXd::Zero(10);
+  x0[idx::kBeta] = 1.0;
+  x0.tail<3>() << 1.15, 0.0, 2.0;
+  Eigen::MatrixXd P0 = Eigen::MatrixXd::Identity(10, 10) * 0.01;
+  std::vector<bool> fixed(10, false);
+  fixed[9] = true;
+  const PlaneModel model(s.ref, std::vector<int>(n, 0));
+  for (auto _ : state) {
+    state.PauseTiming();
+    RecursiveFilter<PlaneModel> f(model, Ekf(x0, P0, fixed), options());
+    state.ResumeTiming();
+    FrameStats fs = f.step(s.obs);
+    benchmark::DoNotOptimize(fs);
+    if (!fs.update.applied) state.SkipWithError("update not applied");
+  }
+  state.counters["points"] = n;
+  state.counters["time_per_point"] = benchmark::Counter(
+      static_cast<double>(state.iterations()) * n, benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+}
+
+void BM_PointUpdate(benchmark::State& state) {
+  const int n = static_cast<int>(state.range(0));
+  const Setup s = makeSetup(n);
+  Eigen::VectorXd x0 = Eigen::VectorXd::Zero(7 + n);
+  x0[idx::kBeta] = 1.0;
+  Eigen::MatrixXd P0 = Eigen::MatrixXd::Identity(7 + n, 7 + n) * 0.01;
+  std::vector<bool> fixed(7 + n, false);
+  for (int i = 0; i < n; ++i) x0[7 + i] = 0.6;
+  fixed[7] = true;
+  const PointModel model(s.ref);
+  for (auto _ : state) {
+    state.PauseTiming();
+    RecursiveFilter<PointModel> f(model, Ekf(x0, P0, fixed), options());
+    state.ResumeTiming();
+    FrameStats fs = f.step(s.obs);
+    benchmark::DoNotOptimize(fs);
+    if (!fs.update.applied) state.SkipWithError("update not applied");
+  }
+  state.counters["points"] = n;
+  state.counters["time_per_point"] = benchmark::Counter(
+      static_cast<double>(state.iterations()) * n, benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+}
+
+}  // namespace
+
+BENCHMARK(BM_PlaneUpdate)->Arg(30)->Arg(300)->Arg(3000)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_PointUpdate)->Arg(30)->Arg(300)->Unit(benchmark::kMicrosecond);
+BENCHMARK_MAIN();

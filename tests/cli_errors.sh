@@ -1,0 +1,69 @@
+#!/usr/bin/env bash
+# CLI bad-input contract: one-line error on stderr, exit code 2, no output files left behind.
+# Also a small successful run whose table1.csv has exactly the documented header.
+# Usage: cli_errors.sh path/to/rsfm
+set -u
+RSFM="$1"
+TMP="$(mktemp -d)"
+trap 'rm -rf "$TMP"' EXIT
+pass=0
+fail=0
+check() {  # check NAME EXPECTED_CODE DIR -- args...
+  local name="$1" want="$2" dir="$3"
+  shift 4
+  "$RSFM" "$@" >"$TMP/out.txt" 2>"$TMP/err.txt"
+  local code=$?
+  local lines
+  lines=$(wc -l <"$TMP/err.txt")
+  local leftovers=""
+  if [ -n "$dir" ] && [ -d "$dir" ]; then leftovers=$(ls -A "$dir"); fi
+  if [ "$code" -eq "$want" ] && [ "$lines" -eq 1 ] && grep -q "^rsfm: error: " "$TMP/err.txt" && [ -z "$leftovers" ]; then
+    pass=$((pass + 1))
+    echo "ok   $name: $(cat "$TMP/err.txt")"
+  else
+    fail=$((fail + 1))
+    echo "FAIL $name: exit $code (want $want), $lines stderr lines, leftovers '$leftovers'"
+    sed 's/^/     | /' "$TMP/err.txt"
+  fi
+}
+D="$TMP/o1"
+check "unknown subcommand" 2 "$D" -- frobnicate
+check "unknown experiment" 2 "$D" -- experiment table9 --out "$D"
+check "unknown option" 2 "$D" -- experiment table1 --out "$D" --bogus 3
+check "negative noise" 2 "$D" -- experiment table1 --out "$D" --noise 2,-6
+check "zero trials" 2 "$D" -- experiment table1 --out "$D" --trials 0
+check "non-numeric trials" 2 "$D" -- experiment table1 --out "$D" --trials many
+check "NaN noise" 2 "$D" -- experiment table1 --out "$D" --noise nan
+check "bad reading" 2 "$D" -- experiment table1 --out "$D" --reading sideways
+check "too few points" 2 "$D" -- experiment table1 --out "$D" --points 4
+touch "$TMP/afile"
+check "output is a file" 2 "" -- experiment table1 --out "$TMP/afile"
+mkdir -p "$TMP/ro"
+chmod 555 "$TMP/ro"
+if [ "$(id -u)" -eq 0 ]; then
+  # root ignores permissions: use a path under a regular file instead (cannot be created)
+  check "unwritable output directory" 2 "" -- experiment table1 --out "$TMP/afile/sub"
+else
+  check "unwritable output directory" 2 "$TMP/ro" -- experiment table1 --out "$TMP/ro"
+fi
+[ -d "$D" ] && { echo "FAIL output directory $D was created by a failing run"; fail=$((fail + 1)); }
+
+# A small good run.
+G="$TMP/good"
+if "$RSFM" experiment table1 --trials 2 --frames 20 --quiet --out "$G" 2>"$TMP/err.txt"; then
+  hdr=$(head -1 "$G/table1.csv")
+  rows=$(($(wc -l <"$G/table1.csv") - 1))
+  if [ "$hdr" = "formulation,noise_px,m_t,sigma_t,m_q,sigma_q,r_s,r_c" ] && [ "$rows" -eq 6 ] &&
+     [ -s "$G/table1.md" ] && [ -s "$G/fig1.png" ] && [ -s "$G/fig1.svg" ] &&
+     ! ls "$G" | grep -q tmp && ! grep -qi nan "$G/table1.csv"; then
+    pass=$((pass + 1)); echo "ok   good run: $(ls "$G" | tr '\n' ' ')"
+  else
+    fail=$((fail + 1)); echo "FAIL good run: header '$hdr', $rows rows, files: $(ls "$G" | tr '\n' ' ')"
+  fi
+else
+  fail=$((fail + 1)); echo "FAIL good run exited non-zero: $(cat "$TMP/err.txt")"
+fi
+# --help succeeds.
+if "$RSFM" experiment table1 --help >/dev/null 2>&1; then pass=$((pass + 1)); echo "ok   --help"; else fail=$((fail + 1)); echo "FAIL --help"; fi
+echo "$pass passed, $fail failed"
+[ "$fail" -eq 0 ]
