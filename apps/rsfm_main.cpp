@@ -71,6 +71,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   t1->add_option("--iterations", o.iterations, "update iterations (1: EKF, >1: iterated EKF)")
       ->capture_default_str();
+  t1->add_option("--reference", o.reference_model,
+                 "reference positions: exact (as published) | inflate | refine")
+      ->capture_default_str();
   t1->add_option("--alpha-init", o.alpha_init, "point model initial depths: plane | constant")
       ->capture_default_str();
   t1->add_option("--alpha-var", o.alpha_var, "point model initial depth variance (<=0: propagate)")

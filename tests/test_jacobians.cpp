@@ -221,6 +221,44 @@ TEST(PlaneModelJacobian, MultiplePlanesTouchOnlyTheirOwnBlock) {
   EXPECT_EQ((H.block<2, 3>(0, 7).norm()), 0.0);
 }
 
+// dh/d(u, v)^1: the reference Jacobian used to transfer reference noise and refine references.
+template <class Model>
+void checkReferenceJacobian(Model model, const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg, int i,
+                            const std::string& what) {
+  const MotionContext m = MotionContext::fromState(x, Rg);
+  Eigen::Vector2d h;
+  Eigen::Matrix2d Hu;
+  if constexpr (std::is_same_v<Model, PlaneModel>) {
+    ASSERT_EQ(model.measure(m, x, i, &h, nullptr, nullptr, &Hu), MeasureStatus::Ok) << what;
+  } else {
+    ASSERT_EQ(model.measure(m, x, i, &h, nullptr, nullptr, &Hu), MeasureStatus::Ok) << what;
+  }
+  auto f = [&](const Eigen::VectorXd& uv, Eigen::VectorXd* y) {
+    Model mm = model;
+    mm.setReference(i, uv);
+    Eigen::Vector2d hh;
+    if (mm.measure(x, Rg, i, &hh, nullptr) != MeasureStatus::Ok) return false;
+    *y = hh;
+    return true;
+  };
+  expectJacobian(f, Eigen::VectorXd(model.reference(i)), Hu, 1e-6, what);
+}
+
+TEST(ReferenceJacobian, PointAndPlaneModels) {
+  const PointModel pm = pointModel();
+  Eigen::VectorXd xp = motion({0.05, -0.03, 0.02}, {0.02, -0.04, 0.01}, 0.9, pm.stateDim());
+  xp.tail(5) << 0.6, 0.8, 1.1, 0.5, 0.9;
+  const PlaneModel lm = planeModel();
+  const auto xl = planeState({0.05, -0.03, 0.02}, {0.02, -0.04, 0.01}, 0.9, {1.15, 0.1, 2.0});
+  for (int i = 0; i < 5; ++i) {
+    checkReferenceJacobian(pm, xp, someRotation(), i, "point model reference " + std::to_string(i));
+    checkReferenceJacobian(lm, xl, someRotation(), i, "plane model reference " + std::to_string(i));
+  }
+  // omega = 0, identity: the plane model's reference Jacobian is the plane-induced homography's.
+  const auto x0 = planeState({0, 0, 0}, Eigen::Vector3d::Zero(), 1.0, {1.15, 0.1, 2.0});
+  checkReferenceJacobian(lm, x0, Eigen::Matrix3d::Identity(), 2, "plane model reference, no motion");
+}
+
 TEST(Models, InvalidRotationIsReported) {
   const PlaneModel m = planeModel();
   const auto x = planeState({0, 0, 0}, {2.5, 0, 0}, 1.0, {1.0, 0.0, 2.0});

@@ -35,6 +35,7 @@ struct Track {
   double nis_per_dof_sum = 0.0;
   int nis_frames = 0;
   long gated = 0;
+  long invalid = 0;
 };
 
 struct Job {
@@ -58,9 +59,13 @@ void recordFrame(const RecursiveFilter<Model>& f, const Eigen::Vector3d& N, cons
   tr->normal_err.push_back(normalAngle(N, n_true));
 }
 
-std::string failureText(int frame, const FrameStats& fs) {
+std::string failureText(int frame, const FrameStats& fs, int points) {
   std::ostringstream os;
-  os << "frame " << frame << ": " << describeHealth(fs.health);
+  os << "frame " << frame << ": ";
+  if (fs.health != kHealthy) os << describeHealth(fs.health);
+  else os << describeHealth(fs.update.health);
+  if (fs.invalid > 0)
+    os << " (" << fs.invalid << " of " << points << " predictions failed: " << toString(fs.first_problem) << ")";
   return os.str();
 }
 
@@ -92,6 +97,9 @@ Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, st
       o.q_omega, o.q_beta;
   fo.q_structure = o.q_structure;
   fo.iterations = o.iterations;
+  parseReferenceModel(o.reference_model, &fo.reference);
+  // The reference frame carries the same noise as the others (or none).
+  fo.reference_sigma = o.reference_noise ? fo.sigma_uv / std::sqrt(o.r_scale) : 0.0;
   fo.update.gate_probability = o.gate_probability;
 
   // ---- plane filter (state 10) ----
@@ -114,10 +122,10 @@ Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, st
       for (int i = 0; i < Np; ++i) obs[i] = {i, uv[k][i]};
       const FrameStats fs = f.step(obs);
       tr.gated += fs.update.gated;
-      if (fs.health != kHealthy || fs.invalid > 0) {
+      tr.invalid += fs.invalid;  // predictions that failed: left out of this frame, counted
+      if (fs.health != kHealthy || !fs.update.applied) {
         tr.failed = true;
-        tr.failure = "plane " + failureText(k, fs) +
-                     (fs.invalid ? std::string("; ") + std::string(toString(fs.first_problem)) : "");
+        tr.failure = "plane " + failureText(k, fs, f.model().numPoints());
         break;
       }
       if (fs.update.applied && fs.update.nis_dof > 0) {
@@ -178,10 +186,10 @@ Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, st
       for (int i = 0; i < Np; ++i) obs[i] = {i, uv[k][i]};
       const FrameStats fs = f.step(obs);
       tr.gated += fs.update.gated;
-      if (fs.health != kHealthy || fs.invalid > 0) {
+      tr.invalid += fs.invalid;  // predictions that failed: left out of this frame, counted
+      if (fs.health != kHealthy || !fs.update.applied) {
         tr.failed = true;
-        tr.failure = "point " + failureText(k, fs) +
-                     (fs.invalid ? std::string("; ") + std::string(toString(fs.first_problem)) : "");
+        tr.failure = "point " + failureText(k, fs, f.model().numPoints());
         break;
       }
       if (fs.update.applied && fs.update.nis_dof > 0) {
@@ -224,6 +232,7 @@ void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vec
       ok.push_back(t);
     }
     row->gated += t->gated;
+    row->invalid += t->invalid;
   }
   const double nan = std::numeric_limits<double>::quiet_NaN();
   if (ok.empty()) {
@@ -304,6 +313,8 @@ std::string validateTable1Options(const Table1Options& o) {
   if (o.point_gauge >= o.scene.points) return "--point-gauge must be below --points";
   if (o.threads < 0) return "--threads must be non-negative";
   if (o.iterations < 1) return "--iterations must be at least 1";
+  if (ReferenceModel r; !parseReferenceModel(o.reference_model, &r))
+    return "--reference must be 'exact', 'inflate' or 'refine'";
   return {};
 }
 

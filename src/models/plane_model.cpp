@@ -32,7 +32,7 @@ MeasureStatus PlaneModel::checkRay(const Eigen::Vector3d& N, double beta,
 
 MeasureStatus PlaneModel::point(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv,
                                 Eigen::Vector3d* p, Eigen::Vector3d* dp_dbeta,
-                                Eigen::Matrix3d* dp_dN) {
+                                Eigen::Matrix3d* dp_dN, Eigen::Matrix<double, 3, 2>* dp_duv) {
   const MeasureStatus s = checkRay(N, beta, uv);
   if (s != MeasureStatus::Ok) return s;
   const double u = uv.x(), v = uv.y();
@@ -51,20 +51,29 @@ MeasureStatus PlaneModel::point(const Eigen::Vector3d& N, double beta, const Eig
     dp_dN->col(1) = -e2 * v * nb * ray;
     dp_dN->col(2) = -e2 * g * ray;
   }
+  if (dp_duv) {
+    // d eta/du = -beta N_X eta^2, d eta/dv = -beta N_Y eta^2.
+    const double deu = -beta * N.x() * e2, dev = -beta * N.y() * e2;
+    dp_duv->col(0) << nb * (eta + u * deu), nb * v * deu, -N.x() * eta + g * deu;
+    dp_duv->col(1) << nb * u * dev, nb * (eta + v * dev), -N.y() * eta + g * dev;
+  }
   return MeasureStatus::Ok;
 }
 
 MeasureStatus PlaneModel::measure(const MotionContext& m, const Eigen::VectorXd& x, int i,
                                   Eigen::Vector2d* h, Eigen::Matrix<double, 2, 7>* Hm,
-                                  Eigen::Matrix<double, 2, 3>* Hn) const {
+                                  Eigen::Matrix<double, 2, 3>* Hn, Eigen::Matrix2d* Hu) const {
   const Eigen::Vector3d N = x.segment<3>(planeIndex(labels_[i]));
   Eigen::Vector3d p, dpb;
   Eigen::Matrix3d dpN;
-  MeasureStatus s = point(N, m.beta, ref_[i], &p, &dpb, &dpN);
+  Eigen::Matrix<double, 3, 2> dpu;
+  MeasureStatus s = point(N, m.beta, ref_[i], &p, &dpb, &dpN, Hu ? &dpu : nullptr);
   if (s != MeasureStatus::Ok) return s;
   Eigen::Matrix<double, 2, 3> dhdp;
-  s = projectWithJacobian(m, p, dpb, h, Hm, Hn ? &dhdp : nullptr);
-  if (s == MeasureStatus::Ok && Hn) *Hn = dhdp * dpN;
+  s = projectWithJacobian(m, p, dpb, h, Hm, (Hn || Hu) ? &dhdp : nullptr);
+  if (s != MeasureStatus::Ok) return s;
+  if (Hn) *Hn = dhdp * dpN;
+  if (Hu) *Hu = dhdp * dpu;
   return s;
 }
 
@@ -84,19 +93,23 @@ MeasureStatus PlaneModel::measure(const Eigen::VectorXd& x, const Eigen::Matrix3
 
 void PlaneModel::linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
                            const std::vector<Observation>& obs, double sigma,
-                           MeasurementBatch* batch, int* invalid,
-                           MeasureStatus* first_problem) const {
+                           const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
+                           int* invalid, MeasureStatus* first_problem,
+                           std::vector<int>* used) const {
   const MotionContext m = MotionContext::fromState(x, Rg);
   const int n = static_cast<int>(x.size());
   batch->resize(static_cast<int>(obs.size()), n, 2);
+  if (used) used->clear();
   *invalid = 0;
   *first_problem = MeasureStatus::Ok;
   int b = 0;
-  for (const Observation& o : obs) {
+  for (int k = 0; k < static_cast<int>(obs.size()); ++k) {
+    const Observation& o = obs[k];
     Eigen::Vector2d h;
     Eigen::Matrix<double, 2, 7> Hm;
     Eigen::Matrix<double, 2, 3> Hn;
-    const MeasureStatus s = measure(m, x, o.id, &h, &Hm, &Hn);
+    Eigen::Matrix2d Hu;
+    const MeasureStatus s = measure(m, x, o.id, &h, &Hm, &Hn, ref_cov ? &Hu : nullptr);
     if (s != MeasureStatus::Ok || !o.uv.allFinite()) {
       if (*invalid == 0) *first_problem = s == MeasureStatus::Ok ? MeasureStatus::NonFinite : s;
       ++*invalid;
@@ -105,7 +118,10 @@ void PlaneModel::linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
     batch->residual.segment<2>(2 * b) = o.uv - h;
     batch->H.block<2, 7>(2 * b, 0) = Hm;
     batch->H.block<2, 3>(2 * b, planeIndex(labels_[o.id])) = Hn;
-    batch->R.block<2, 2>(2 * b, 0) = Eigen::Matrix2d::Identity() * sigma * sigma;
+    Eigen::Matrix2d R = Eigen::Matrix2d::Identity() * sigma * sigma;
+    if (ref_cov) R += Hu * (*ref_cov)[o.id] * Hu.transpose();
+    batch->R.block<2, 2>(2 * b, 0) = R;
+    if (used) used->push_back(k);
     ++b;
   }
   batch->residual.conservativeResize(2 * b);

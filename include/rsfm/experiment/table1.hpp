@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "rsfm/recursive_filter.hpp"
 #include "rsfm/rotation.hpp"
 #include "rsfm/sim/table1_scene.hpp"
 
@@ -28,12 +29,14 @@ struct Table1Options {
   double q_omega = 1e-4;         ///< per-frame variance of each omega component (rad^2)
   double q_beta = 0.0;           ///< per-frame variance of beta
   double q_structure = 0.0;      ///< per-frame variance of each free structure component
-  double r_scale = 2.0;          ///< R = r_scale * (noise_px / s)^2: 2 counts the reference frame's noise
+  double r_scale = 1.0;          ///< R = r_scale * (noise_px / s)^2 per coordinate
   /// Noise on the reference frame too (its noisy positions become the filters' first-frame
   /// coordinates, which the A&P models treat as exact: seed §2's "known weakness").
   bool reference_noise = true;
   double gate_probability = 0.999;  ///< per-point chi2 gate (<= 0 disables)
   int iterations = 1;            ///< measurement-update iterations (1 = EKF, > 1 = iterated EKF)
+  /// Treatment of the noisy reference positions (exact = as published; see ReferenceModel).
+  std::string reference_model = "inflate";
   /// Point model: initial depths from the initial plane N0 with beta0 ("plane") or all equal to
   /// the initial plane's depth on the optical axis ("constant").
   std::string alpha_init = "plane";
@@ -68,6 +71,7 @@ struct Table1Row {
   int nees_dof = 0;                 ///< its dof per trial (0 when not computed)
   double mean_nis_per_dof = 0;      ///< mean NIS / dof over frames and trials
   long gated = 0;                   ///< points gated, summed over frames and trials
+  long invalid = 0;                 ///< observations whose prediction failed (left out), summed
   int trials = 0, failed = 0;       ///< trials run, trials stopped by numerical trouble
   std::string first_failure;        ///< description of the first failure, if any
 };

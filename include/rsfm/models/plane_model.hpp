@@ -43,24 +43,29 @@ class PlaneModel {
   static MeasureStatus checkRay(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv1);
 
   /// Reference-frame 3-D point of eq. 12 with dp/dbeta and dp/dN (3x3, columns N_X, N_Y, N_Z)
-  /// (seed appendix). Outputs may be null.
+  /// (seed appendix) and dp/d(u, v) (3x2). Outputs may be null.
   static MeasureStatus point(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv1,
                              Eigen::Vector3d* p, Eigen::Vector3d* dp_dbeta,
-                             Eigen::Matrix3d* dp_dN);
+                             Eigen::Matrix3d* dp_dN, Eigen::Matrix<double, 3, 2>* dp_duv = nullptr);
+
+  /// Replaces point i's reference position (reference refinement, see recursive_filter.hpp).
+  void setReference(int i, const Eigen::Vector2d& uv) { ref_[i] = uv; }
 
   /// Predicted measurement of point i and its Jacobian with respect to the whole state (2 x n).
   MeasureStatus measure(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg, int i,
                         Eigen::Vector2d* h, Eigen::MatrixXd* H) const;
 
-  /// Fast form: 2x7 motion block and 2x3 block of the point's plane.
+  /// Fast form: 2x7 motion block, 2x3 block of the point's plane and dh/d(u, v)^1 (2x2).
   MeasureStatus measure(const MotionContext& m, const Eigen::VectorXd& x, int i,
                         Eigen::Vector2d* h, Eigen::Matrix<double, 2, 7>* Hm,
-                        Eigen::Matrix<double, 2, 3>* Hn) const;
+                        Eigen::Matrix<double, 2, 3>* Hn, Eigen::Matrix2d* Hu = nullptr) const;
 
-  /// Linearizes every observation: O(N). Failed predictions are left out and counted.
+  /// Linearizes every observation: O(N). R = sigma^2 I (+ Hu C_i Hu^T with `ref_cov`).
+  /// Failed predictions are left out and counted; `used` receives each block's observation index.
   void linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
-                 const std::vector<Observation>& obs, double sigma, MeasurementBatch* batch,
-                 int* invalid, MeasureStatus* first_problem) const;
+                 const std::vector<Observation>& obs, double sigma,
+                 const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
+                 int* invalid, MeasureStatus* first_problem, std::vector<int>* used = nullptr) const;
 
  private:
   std::vector<Eigen::Vector2d> ref_;

@@ -35,16 +35,22 @@ class PointModel {
                         Eigen::Vector2d* h, Eigen::MatrixXd* H) const;
 
   /// Fast form used by the filter: motion context computed once per frame; writes the 2 x 7
-  /// motion block and the 2 x 1 alpha column.
+  /// motion block, the 2 x 1 alpha column and dh/d(u, v)^1 (2 x 2, the reference Jacobian).
   MeasureStatus measure(const MotionContext& m, const Eigen::VectorXd& x, int i,
                         Eigen::Vector2d* h, Eigen::Matrix<double, 2, 7>* Hm,
-                        Eigen::Vector2d* Ha) const;
+                        Eigen::Vector2d* Ha, Eigen::Matrix2d* Hu = nullptr) const;
 
-  /// Linearizes every observation (residual, Jacobian, R = sigma^2 I). Observations whose
-  /// prediction fails are left out and counted in *invalid (never silently).
+  /// Replaces point i's reference position (reference refinement, see recursive_filter.hpp).
+  void setReference(int i, const Eigen::Vector2d& uv) { ref_[i] = uv; }
+
+  /// Linearizes every observation (residual, Jacobian, R). R = sigma^2 I, plus
+  /// Hu C_i Hu^T when `ref_cov` gives the covariance C_i of each reference position.
+  /// Observations whose prediction fails are left out and counted in *invalid (never silently).
+  /// `used` (optional) receives the observation index of each batch block.
   void linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
-                 const std::vector<Observation>& obs, double sigma, MeasurementBatch* batch,
-                 int* invalid, MeasureStatus* first_problem) const;
+                 const std::vector<Observation>& obs, double sigma,
+                 const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
+                 int* invalid, MeasureStatus* first_problem, std::vector<int>* used = nullptr) const;
 
  private:
   std::vector<Eigen::Vector2d> ref_;
