@@ -80,6 +80,37 @@ bool pointModelPlane(const RecursiveFilter<PointModel>& f, Eigen::Vector3d* N) {
   return fitPlane(pts, &n, &d) && planeFromNormalOffset(n, d, N);
 }
 
+/// Runs frames 1..F of one filter on all points, recording each frame; stops the trial on
+/// numerical trouble (failed predictions are left out of their frame and counted).
+template <class Model, class PlaneOf>
+void runFrames(RecursiveFilter<Model>& f, const std::vector<std::vector<Eigen::Vector2d>>& uv, int F,
+               const std::string& name, const Eigen::Vector3d& n_true, PlaneOf planeOf, Track* tr) {
+  const int Np = static_cast<int>(uv[0].size());
+  std::vector<Observation> obs(Np);
+  for (int k = 1; k <= F; ++k) {
+    for (int i = 0; i < Np; ++i) obs[i] = {i, uv[k][i]};
+    const FrameStats fs = f.step(obs);
+    tr->gated += fs.update.gated;
+    tr->invalid += fs.invalid;
+    if (fs.health != kHealthy || !fs.update.applied) {
+      tr->failed = true;
+      tr->failure = name + " " + failureText(k, fs, f.model().numPoints());
+      return;
+    }
+    if (fs.update.nis_dof > 0) {
+      tr->nis_per_dof_sum += fs.update.nis / fs.update.nis_dof;
+      ++tr->nis_frames;
+    }
+    Eigen::Vector3d N;
+    if (!planeOf(f, &N)) {
+      tr->failed = true;
+      tr->failure = name + " frame " + std::to_string(k) + ": plane fit failed";
+      return;
+    }
+    recordFrame(f, N, n_true, tr);
+  }
+}
+
 Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, std::uint64_t noise_seed) {
   Job job;
   std::mt19937_64 rng(noise_seed);
@@ -117,23 +148,12 @@ Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, st
     RecursiveFilter<PlaneModel> f(std::move(model), Ekf(x0, P0, fixed), fo);
     Track& tr = job.plane;
     recordFrame(f, o.N0, n_true, &tr);
-    for (int k = 1; k <= F && !tr.failed; ++k) {
-      std::vector<Observation> obs(Np);
-      for (int i = 0; i < Np; ++i) obs[i] = {i, uv[k][i]};
-      const FrameStats fs = f.step(obs);
-      tr.gated += fs.update.gated;
-      tr.invalid += fs.invalid;  // predictions that failed: left out of this frame, counted
-      if (fs.health != kHealthy || !fs.update.applied) {
-        tr.failed = true;
-        tr.failure = "plane " + failureText(k, fs, f.model().numPoints());
-        break;
-      }
-      if (fs.update.applied && fs.update.nis_dof > 0) {
-        tr.nis_per_dof_sum += fs.update.nis / fs.update.nis_dof;
-        ++tr.nis_frames;
-      }
-      recordFrame(f, f.ekf().x().segment<3>(7), n_true, &tr);
-    }
+    runFrames(f, uv, F, "plane", n_true,
+              [](const RecursiveFilter<PlaneModel>& ff, Eigen::Vector3d* N) {
+                *N = ff.ekf().x().segment<3>(7);
+                return true;
+              },
+              &tr);
     if (!tr.failed) {
       // NEES of the free static parameters (beta, N_X, N_Y) at the last frame.
       const auto& x = f.ekf().x();
@@ -181,28 +201,7 @@ Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, st
     Eigen::Vector3d N;
     if (!pointModelPlane(f, &N)) N = o.N0;
     recordFrame(f, N, n_true, &tr);
-    for (int k = 1; k <= F && !tr.failed; ++k) {
-      std::vector<Observation> obs(Np);
-      for (int i = 0; i < Np; ++i) obs[i] = {i, uv[k][i]};
-      const FrameStats fs = f.step(obs);
-      tr.gated += fs.update.gated;
-      tr.invalid += fs.invalid;  // predictions that failed: left out of this frame, counted
-      if (fs.health != kHealthy || !fs.update.applied) {
-        tr.failed = true;
-        tr.failure = "point " + failureText(k, fs, f.model().numPoints());
-        break;
-      }
-      if (fs.update.applied && fs.update.nis_dof > 0) {
-        tr.nis_per_dof_sum += fs.update.nis / fs.update.nis_dof;
-        ++tr.nis_frames;
-      }
-      if (!pointModelPlane(f, &N)) {
-        tr.failed = true;
-        tr.failure = "point frame " + std::to_string(k) + ": plane fit failed";
-        break;
-      }
-      recordFrame(f, N, n_true, &tr);
-    }
+    runFrames(f, uv, F, "point", n_true, pointModelPlane, &tr);
   }
   return job;
 }

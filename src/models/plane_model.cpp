@@ -1,5 +1,7 @@
 #include "rsfm/models/plane_model.hpp"
 
+#include "rsfm/models/linearize.hpp"
+
 #include <cmath>
 #include <stdexcept>
 
@@ -96,37 +98,7 @@ void PlaneModel::linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
                            const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
                            int* invalid, MeasureStatus* first_problem,
                            std::vector<int>* used) const {
-  const MotionContext m = MotionContext::fromState(x, Rg);
-  const int n = static_cast<int>(x.size());
-  batch->resize(static_cast<int>(obs.size()), n, 2);
-  if (used) used->clear();
-  *invalid = 0;
-  *first_problem = MeasureStatus::Ok;
-  int b = 0;
-  for (int k = 0; k < static_cast<int>(obs.size()); ++k) {
-    const Observation& o = obs[k];
-    Eigen::Vector2d h;
-    Eigen::Matrix<double, 2, 7> Hm;
-    Eigen::Matrix<double, 2, 3> Hn;
-    Eigen::Matrix2d Hu;
-    const MeasureStatus s = measure(m, x, o.id, &h, &Hm, &Hn, ref_cov ? &Hu : nullptr);
-    if (s != MeasureStatus::Ok || !o.uv.allFinite()) {
-      if (*invalid == 0) *first_problem = s == MeasureStatus::Ok ? MeasureStatus::NonFinite : s;
-      ++*invalid;
-      continue;
-    }
-    batch->residual.segment<2>(2 * b) = o.uv - h;
-    batch->H.block<2, 7>(2 * b, 0) = Hm;
-    batch->H.block<2, 3>(2 * b, planeIndex(labels_[o.id])) = Hn;
-    Eigen::Matrix2d R = Eigen::Matrix2d::Identity() * sigma * sigma;
-    if (ref_cov) R += Hu * (*ref_cov)[o.id] * Hu.transpose();
-    batch->R.block<2, 2>(2 * b, 0) = R;
-    if (used) used->push_back(k);
-    ++b;
-  }
-  batch->residual.conservativeResize(2 * b);
-  batch->H.conservativeResize(2 * b, Eigen::NoChange);
-  batch->R.conservativeResize(2 * b, Eigen::NoChange);
+  linearizeObservations(*this, x, Rg, obs, sigma, ref_cov, batch, invalid, first_problem, used);
 }
 
 }  // namespace rsfm

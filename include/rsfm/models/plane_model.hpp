@@ -20,6 +20,8 @@ class PlaneModel {
  public:
   /// Points needed for one plane with unknown focal length (seed §3.1: 1 + 2N > 10).
   static constexpr int kMinPoints = 5;
+  /// Structure columns one point's measurement depends on (its plane's N).
+  static constexpr int kStructurePerPoint = 3;
   /// |N| above this (plane closer than 1e-9 units to the image-plane origin) is reported.
   static constexpr double kMaxPlaneNorm = 1e9;
   /// |eta| above this (ray within ~1e-9 of parallel to the plane) is reported.
@@ -35,6 +37,7 @@ class PlaneModel {
   static int planeIndex(int plane) { return 7 + 3 * plane; }
   const Eigen::Vector2d& reference(int i) const { return ref_[i]; }
   int label(int i) const { return labels_[i]; }
+  int structureIndex(int i) const { return planeIndex(labels_[i]); }
 
   /// Adds a point seen first at `ref_uv` (reference-frame normalized coordinates) on `plane`.
   int addPoint(const Eigen::Vector2d& ref_uv, int plane);

@@ -16,6 +16,8 @@ class PointModel {
  public:
   /// A&P need at least 7 points for the state to be observable (seed §3.1).
   static constexpr int kMinPoints = 7;
+  /// Structure columns one point's measurement depends on (its alpha).
+  static constexpr int kStructurePerPoint = 1;
 
   PointModel() = default;
   /// `ref_uv`: first-frame normalized image positions, one per point (state index 7 + i).
@@ -25,6 +27,7 @@ class PointModel {
   int stateDim() const { return 7 + numPoints(); }
   const Eigen::Vector2d& reference(int i) const { return ref_[i]; }
   static int alphaIndex(int i) { return 7 + i; }
+  int structureIndex(int i) const { return alphaIndex(i); }
 
   /// Reference-frame 3-D point of eq. 5.
   static Eigen::Vector3d point(const Eigen::Vector2d& uv1, double alpha, double beta);

@@ -1,0 +1,59 @@
+#pragma once
+// Linearization of a frame's observations shared by the point-based models. A model provides
+//   static constexpr int kStructurePerPoint;     // structure columns one point depends on
+//   int structureIndex(int i) const;              // first such column
+//   MeasureStatus measure(const MotionContext&, const Eigen::VectorXd& x, int i, Eigen::Vector2d* h,
+//                         Eigen::Matrix<double, 2, 7>* Hm,
+//                         Eigen::Matrix<double, 2, kStructurePerPoint>* Hs, Eigen::Matrix2d* Hu) const;
+// Cost O(N) in the number of observations.
+#include <Eigen/Core>
+#include <vector>
+
+#include "rsfm/ekf.hpp"
+#include "rsfm/models/projection.hpp"
+
+namespace rsfm {
+
+/// Fills `batch` with residual z - h(x), Jacobian and R = sigma^2 I (+ Hu C_i Hu^T with
+/// `ref_cov`, C_i the covariance of point i's reference position). Observations whose
+/// prediction fails are left out and counted in *invalid (the first reason in *first_problem);
+/// `used` (optional) receives the observation index of each block.
+template <class Model>
+void linearizeObservations(const Model& model, const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
+                           const std::vector<Observation>& obs, double sigma,
+                           const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
+                           int* invalid, MeasureStatus* first_problem, std::vector<int>* used) {
+  constexpr int S = Model::kStructurePerPoint;
+  const MotionContext m = MotionContext::fromState(x, Rg);
+  batch->resize(static_cast<int>(obs.size()), static_cast<int>(x.size()), 2);
+  if (used) used->clear();
+  *invalid = 0;
+  *first_problem = MeasureStatus::Ok;
+  int b = 0;
+  for (int k = 0; k < static_cast<int>(obs.size()); ++k) {
+    const Observation& o = obs[k];
+    Eigen::Vector2d h;
+    Eigen::Matrix<double, 2, 7> Hm;
+    Eigen::Matrix<double, 2, S> Hs;
+    Eigen::Matrix2d Hu;
+    const MeasureStatus s = model.measure(m, x, o.id, &h, &Hm, &Hs, ref_cov ? &Hu : nullptr);
+    if (s != MeasureStatus::Ok || !o.uv.allFinite()) {
+      if (*invalid == 0) *first_problem = s == MeasureStatus::Ok ? MeasureStatus::NonFinite : s;
+      ++*invalid;
+      continue;
+    }
+    batch->residual.template segment<2>(2 * b) = o.uv - h;
+    batch->H.template block<2, 7>(2 * b, 0) = Hm;
+    batch->H.template block<2, S>(2 * b, model.structureIndex(o.id)) = Hs;
+    Eigen::Matrix2d R = Eigen::Matrix2d::Identity() * sigma * sigma;
+    if (ref_cov) R += Hu * (*ref_cov)[o.id] * Hu.transpose();
+    batch->R.template block<2, 2>(2 * b, 0) = R;
+    if (used) used->push_back(k);
+    ++b;
+  }
+  batch->residual.conservativeResize(2 * b);
+  batch->H.conservativeResize(2 * b, Eigen::NoChange);
+  batch->R.conservativeResize(2 * b, Eigen::NoChange);
+}
+
+}  // namespace rsfm
