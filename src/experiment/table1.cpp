@@ -245,7 +245,9 @@ void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vec
   for (auto* v : {&ser->t_x, &ser->t_zb, &ser->q0, &ser->q2, &ser->n_x, &ser->n_y, &ser->beta,
                   &ser->normal_err_deg})
     v->assign(F + 1, 0.0);
+  std::vector<double> trial_t, trial_q;
   for (const Track* t : ok) {
+    double tt2 = 0, tq2 = 0;
     for (int k = 0; k <= F; ++k) {
       const Eigen::Quaterniond qt = canonical(Eigen::Quaterniond(scene0.R[k]));
       if (k > 0) {
@@ -253,6 +255,8 @@ void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vec
         for (int j = 0; j < 3; ++j) st += et[j], st2 += et[j] * et[j], ++ct;
         const Eigen::Vector4d eq = t->q[k].coeffs() - qt.coeffs();
         for (int j = 0; j < 4; ++j) sq += eq[j], sq2 += eq[j] * eq[j], ++cq;
+        tt2 += et.squaredNorm();
+        tq2 += eq.squaredNorm();
       }
       ser->t_x[k] += t->t[k].x() / K;
       ser->t_zb[k] += t->t_zb[k] / K;
@@ -263,6 +267,8 @@ void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vec
       ser->beta[k] += t->beta[k] / K;
       ser->normal_err_deg[k] += t->normal_err[k] * kRad2Deg / K;
     }
+    trial_t.push_back(std::sqrt(tt2 / (3.0 * F)));
+    trial_q.push_back(std::sqrt(tq2 / (4.0 * F)));
     row->final_normal_err_deg += t->normal_err[F] * kRad2Deg / K;
     row->final_beta_err_pct += 100.0 * std::abs(t->beta[F] - o.scene.beta) / o.scene.beta / K;
     row->nees_static += t->nees_static / K;
@@ -274,6 +280,13 @@ void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vec
   row->m_q = sq / cq;
   row->sigma_q = std::sqrt(sq2 / cq);
   row->mean_nis_per_dof = nisn ? nis / nisn : nan;
+  auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    const size_t n = v.size();
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+  };
+  row->median_trial_sigma_t = median(trial_t);
+  row->median_trial_sigma_q = median(trial_q);
   row->nees_dof = name == "plane" ? 3 : 0;
   if (name != "plane") row->nees_static = 0;
   // Convergence on the trial-averaged estimates (the curves of Fig. 1).
@@ -338,8 +351,10 @@ Table1Result runTable1(const Table1Options& o) {
   auto worker = [&] {
     for (int j; (j = next.fetch_add(1)) < L * T;) {
       const int l = j / T, i = j % T;
-      jobs[j] = runJob(o, scenes[i], o.noise_px[l],
-                       mixSeed(o.seed, static_cast<std::uint64_t>(i), static_cast<std::uint64_t>(l) + 1));
+      // Noise seeded by the level's value (in 1/1000 px), not its position in the list, so a
+      // level gets the same noise whatever other levels run with it.
+      const auto level_key = static_cast<std::uint64_t>(std::llround(o.noise_px[l] * 1000.0)) + 1;
+      jobs[j] = runJob(o, scenes[i], o.noise_px[l], mixSeed(o.seed, static_cast<std::uint64_t>(i), level_key));
       const int d = ++done;
       if (o.progress) {
         std::lock_guard<std::mutex> lk(mu);

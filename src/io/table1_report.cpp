@@ -66,18 +66,19 @@ std::string table1Markdown(const Table1Result& r, const std::string& command_lin
        "trial-averaged normal stays within 0.5 deg of truth; r_c: first frame from which the "
        "trial-averaged beta stays within 5 % (-1 / >F: never). Paper values from seed 000, Table 1.\n\n";
   s += "| formulation | noise px | m_t | sigma_t | m_q | sigma_q | r_s | r_c | paper sigma_t | paper "
-       "sigma_q | paper r_s | paper r_c | normal err at F (deg) | beta err at F (%) | failed trials |\n";
-  s += "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+       "sigma_q | paper r_s | paper r_c | normal err at F (deg) | beta err at F (%) | median trial sigma_t | median trial sigma_q | failed trials |\n";
+  s += "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const auto& row : r.rows) {
     const auto it = paperTable().find({row.formulation, static_cast<int>(std::lround(row.noise_px))});
     const bool hasPaper = it != paperTable().end() && std::abs(row.noise_px - std::lround(row.noise_px)) < 1e-9;
-    s += fmt::format("| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {}/{} |\n",
+    s += fmt::format("| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {}/{} |\n",
                      row.formulation, num(row.noise_px, 1), num(row.m_t), num(row.sigma_t),
                      num(row.m_q), num(row.sigma_q), frameOr(row.r_s, F), frameOr(row.r_c, F),
                      hasPaper ? num(it->second.s_t) : "-", hasPaper ? num(it->second.s_q) : "-",
                      hasPaper ? frameOr(it->second.r_s, 100) : "-",
                      hasPaper ? frameOr(it->second.r_c, 100) : "-", num(row.final_normal_err_deg, 3),
-                     num(row.final_beta_err_pct, 2), row.failed, row.trials);
+                     num(row.final_beta_err_pct, 2), num(row.median_trial_sigma_t),
+                     num(row.median_trial_sigma_q), row.failed, row.trials);
   }
   s += "\n## Ordering checks (the paper's claims)\n\n";
   s += "| noise px | plane sigma_t < point | plane sigma_q < point | plane r_s no later | plane r_c no later |\n";
