@@ -49,8 +49,10 @@ struct FilterOptions {
   /// Measurement standard deviation (normalized units): R = sigma^2 I per point.
   double sigma_uv = 2.0 / 256.0;
   /// Per-frame process variances of (t_X, t_Y, t_Z beta, omega_X, omega_Y, omega_Z, beta).
+  /// Identity dynamics: they must cover one frame's motion (here ~0.017 units and ~0.01 rad
+  /// standard deviation, the Table 1 scene's per-frame motion; docs/filter.md).
   Eigen::Matrix<double, 7, 1> q_motion =
-      (Eigen::Matrix<double, 7, 1>() << 1e-4, 1e-4, 1e-4, 3e-5, 3e-5, 3e-5, 0.0).finished();
+      (Eigen::Matrix<double, 7, 1>() << 3e-4, 3e-4, 3e-4, 1e-4, 1e-4, 1e-4, 0.0).finished();
   /// Per-frame process variance of every free structure component (0: static structure).
   double q_structure = 0.0;
   UpdateOptions update;  ///< gating, update form, minimum points (set from the model)
