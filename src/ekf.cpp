@@ -29,6 +29,7 @@ std::string describeHealth(std::uint32_t f) {
   add(kSolveFailed, "linear solve failed");
   add(kTooFewMeasurements, "too few measurements");
   add(kBadMeasurementCovariance, "measurement covariance not positive definite");
+  add(kInvalidRotation, "incremental rotation out of range (|omega| >= 2)");
   return s;
 }
 
@@ -70,6 +71,8 @@ std::uint32_t Ekf::health() const {
   if (!x_.allFinite() || !P_.allFinite()) return kNonFiniteState;
   for (int i = 0; i < size(); ++i)
     if (P_(i, i) < 0.0) h |= kCovarianceNotPD;
+  const double scale = std::max(1.0, P_.cwiseAbs().maxCoeff());
+  if (size() > 0 && (P_ - P_.transpose()).cwiseAbs().maxCoeff() > 1e-9 * scale) h |= kCovarianceNotPD;
   return h;
 }
 
@@ -168,6 +171,20 @@ UpdateStats Ekf::update(const MeasurementBatch& batch, const UpdateOptions& opt)
   if (form == UpdateForm::Auto) form = m > nf ? UpdateForm::Information : UpdateForm::Covariance;
   st.form_used = form;
 
+  // The prior must be symmetric positive semi-definite (up to round-off); both forms use its
+  // pivoted LDLT: the information form as the factor G, the covariance form only as this check.
+  Eigen::LDLT<Eigen::MatrixXd> pl(Pf);
+  {
+    const Eigen::VectorXd D = pl.vectorD();
+    const double dmax = std::max(D.cwiseAbs().maxCoeff(), 1e-300);
+    const double scale = std::max(1e-300, Pf.cwiseAbs().maxCoeff());
+    if (pl.info() != Eigen::Success || D.minCoeff() < -1e-9 * dmax ||
+        (Pf - Pf.transpose()).cwiseAbs().maxCoeff() > 1e-9 * scale) {
+      st.health |= kCovarianceNotPD;
+      return st;
+    }
+  }
+
   Eigen::VectorXd dx;
   Eigen::MatrixXd Pn;
   if (form == UpdateForm::Covariance) {
@@ -208,16 +225,9 @@ UpdateStats Ekf::update(const MeasurementBatch& batch, const UpdateOptions& opt)
       g.noalias() += Hb.transpose() * Rir;
       c += rb.dot(Rir);
     }
-    // P = G G^T from a pivoted LDLT (zero-variance directions allowed).
-    Eigen::LDLT<Eigen::MatrixXd> pl(Pf);
-    if (pl.info() != Eigen::Success) {
-      st.health |= kSolveFailed;
-      return st;
-    }
-    Eigen::VectorXd D = pl.vectorD();
-    const double dmax = std::max(D.cwiseAbs().maxCoeff(), 1e-300);
-    if (D.minCoeff() < -1e-9 * dmax) st.health |= kCovarianceNotPD;
-    D = D.cwiseMax(0.0);
+    // P = G G^T from the pivoted LDLT (zero-variance directions allowed; pivots within
+    // round-off of zero were accepted above and are taken as zero).
+    const Eigen::VectorXd D = pl.vectorD().cwiseMax(0.0);
     Eigen::MatrixXd L = pl.matrixL();
     Eigen::MatrixXd G = pl.transpositionsP().transpose() * (L * D.cwiseSqrt().asDiagonal());
     Eigen::MatrixXd M = Eigen::MatrixXd::Identity(nf, nf) + G.transpose() * J * G;

@@ -23,7 +23,7 @@ struct NoiselessResult {
   double nz_final;
 };
 
-NoiselessResult runNoiselessPlane(RotationReading reading) {
+NoiselessResult runNoiselessPlane(RotationReading reading, int iterations = 1) {
   Table1SceneOptions so;
   std::mt19937_64 rng(42);
   const Table1Scene scene = makeTable1Scene(so, rng);
@@ -32,6 +32,7 @@ NoiselessResult runNoiselessPlane(RotationReading reading) {
   fo.reading = reading;
   fo.sigma_uv = 0.1 / so.scale_px;  // the filter assumes 0.1 px; the data are exact
   fo.q_motion << 3e-4, 3e-4, 3e-4, 1e-4, 1e-4, 1e-4, 0.0;
+  fo.iterations = iterations;
   Eigen::VectorXd x0 = Eigen::VectorXd::Zero(10);
   x0[idx::kBeta] = 0.5;
   x0.tail<3>() << 1.5, 0.5, 2.0;
@@ -79,6 +80,34 @@ TEST(PlaneFilter, NoiselessConvergesRateReading) {
   EXPECT_LT(r.t_err, 0.01);
   EXPECT_LT(r.rot_err_deg, 0.5);
   EXPECT_EQ(r.nz_final, 2.0);
+}
+
+TEST(PlaneFilter, NoiselessConvergesIteratedUpdate) {
+  const NoiselessResult r = runNoiselessPlane(RotationReading::Reset, 5);
+  EXPECT_LT(r.normal_err_deg, 0.05);
+  EXPECT_LT(r.beta_err, 0.005);
+  EXPECT_LT(r.t_err, 2e-3);
+  EXPECT_EQ(r.nz_final, 2.0);
+}
+
+TEST(PlaneFilter, UnknownFeatureIdIsReported) {
+  const std::vector<Eigen::Vector2d> ref{{0.1, 0.1}, {-0.2, 0.3}, {0.3, -0.3}, {-0.4, -0.2}, {0.2, 0.25}, {0.0, -0.1}};
+  Eigen::VectorXd x0 = Eigen::VectorXd::Zero(10);
+  x0[6] = 1.0;
+  x0.tail<3>() << 0.0, 0.0, 2.0;
+  std::vector<bool> fixed(10, false);
+  fixed[9] = true;
+  RecursiveFilter<PlaneModel> f(PlaneModel(ref, std::vector<int>(ref.size(), 0)),
+                                Ekf(x0, Eigen::MatrixXd::Identity(10, 10) * 0.01, fixed), FilterOptions{});
+  std::vector<Observation> obs;
+  for (int i = 0; i < 6; ++i) obs.push_back({i, ref[i]});
+  obs.push_back({17, {0.0, 0.0}});
+  obs.push_back({-1, {0.0, 0.0}});
+  const FrameStats fs = f.step(obs);
+  EXPECT_EQ(fs.invalid, 2);
+  EXPECT_EQ(fs.first_problem, MeasureStatus::UnknownFeature);
+  EXPECT_TRUE(fs.update.applied);
+  EXPECT_EQ(fs.update.used, 6);
 }
 
 // ---------------------------------------------------------------------------------------------

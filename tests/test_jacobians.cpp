@@ -173,20 +173,23 @@ TEST(PlaneModelJacobian, SmallBeta) {
 }
 
 TEST(PlaneModelJacobian, NearHorizon) {
-  // Point 2 at (0.6, 0.45): choose N so that beta (N_X u + N_Y v) + N_Z = 1e-3: the ray nearly
-  // parallel to the plane, depth ~1e3. The Jacobian is large but must still match.
+  // Point at (0.6, 0.45): choose N so that beta (N_X u + N_Y v) + N_Z = 5e-3: the ray meets the
+  // plane at a grazing angle of ~0.1 deg (just above the reported limit), depth ~200. The
+  // Jacobian is large but must still match.
   PlaneModel m({{0.6, 0.45}}, {0}, 1);
   const double beta = 1.0, NX = -2.0, NY = 0.0;
-  const double NZ = 1e-3 - beta * (NX * 0.6 + NY * 0.45);
+  const double NZ = 5e-3 - beta * (NX * 0.6 + NY * 0.45);
   // Keep the point in front of the current camera: small motion only.
   const auto x = planeState({0.0, 0.0, 0.0}, {0.001, 0.0, 0.0}, beta, {NX, NY, NZ});
   Eigen::Vector2d h;
   Eigen::MatrixXd H;
   ASSERT_EQ(m.measure(x, Eigen::Matrix3d::Identity(), 0, &h, &H), MeasureStatus::Ok);
   checkModel(m, x, Eigen::Matrix3d::Identity(), 0, 1e-4, "near horizon", 1e-9);
-  // Exactly on the horizon: reported, not divided by zero.
+  // Exactly on the horizon, and just inside the grazing limit: reported, not divided by zero.
   auto xs = x;
   xs[9] = -beta * (NX * 0.6 + NY * 0.45);
+  EXPECT_EQ(m.measure(xs, Eigen::Matrix3d::Identity(), 0, &h, &H), MeasureStatus::HorizonSingular);
+  xs[9] = 1e-3 - beta * (NX * 0.6 + NY * 0.45);  // sine ~ 1e-3 / (2.2 * 1.25) < 1e-3
   EXPECT_EQ(m.measure(xs, Eigen::Matrix3d::Identity(), 0, &h, &H), MeasureStatus::HorizonSingular);
 }
 

@@ -10,10 +10,13 @@
 //     Covariance form: S = H P H^T + R solved by LDLT, K = P H^T S^-1, Joseph-form covariance
 //       P+ = (I-KH) P (I-KH)^T + K R K^T, then symmetrized. Cost O(m^3) in the measurement count m.
 //     Information form: J = sum_b H_b^T R_b^-1 H_b, g = sum_b H_b^T R_b^-1 r_b accumulated block by
-//       block (O(m n^2)), then with P = G G^T (pivoted LDLT of P, so zero-variance directions are
-//       allowed) P+ = G (I + G^T J G)^-1 G^T = (P^-1 + J)^-1 and dx = P+ g. Cost O(m) for a fixed
-//       state size n: this is what makes the plane models O(N) per frame. The square-root form
-//       keeps P+ positive semi-definite by construction (the role Joseph plays in the other form).
+//       block (O(m n^2)), then with a factor P = G G^T (pivoted LDLT of P, so zero-variance
+//       directions are allowed) and the Woodbury identity P+ = G (I + G^T J G)^-1 G^T
+//       = (P^-1 + J)^-1, dx = P+ g. Cost O(m) for a fixed state size n: this is what makes the
+//       plane models O(N) per frame. The factored form keeps P+ positive semi-definite by
+//       construction (the role Joseph plays in the other form).
+// - Both forms check the prior (free part) first: a negative LDLT pivot beyond round-off skips
+//   the update with kCovarianceNotPD (never clamped silently).
 // - Components marked fixed (the scale gauge: zero variance, zero process noise) are excluded
 //   from every update and prediction, so they never move and keep zero variance.
 // - Each block is chi-square gated on its own innovation (d^2 = r_b^T S_b^-1 r_b against the
@@ -39,7 +42,7 @@ struct MeasurementBatch {
 enum class UpdateForm {
   Auto,         ///< Information form when the measurement count exceeds the free state size
   Covariance,   ///< Joseph form with S solved by LDLT
-  Information,  ///< square-root information form, O(m) in the measurement count
+  Information,  ///< factored information form (P = G G^T, Woodbury), O(m) in the measurement count
 };
 
 /// Options of one update (defaults documented inline).
@@ -58,10 +61,11 @@ enum HealthFlag : std::uint32_t {
   kHealthy = 0,
   kNonFiniteInput = 1u << 0,       ///< residual, H or R has NaN/Inf: update skipped
   kNonFiniteState = 1u << 1,       ///< the update produced NaN/Inf: update rolled back
-  kCovarianceNotPD = 1u << 2,      ///< prior P (free part) has a negative eigen-direction
+  kCovarianceNotPD = 1u << 2,      ///< P (free part) not symmetric PSD: update skipped
   kSolveFailed = 1u << 3,          ///< S or (I + G^T J G) could not be factorized: update skipped
   kTooFewMeasurements = 1u << 4,   ///< fewer accepted blocks than min_blocks: update skipped
   kBadMeasurementCovariance = 1u << 5,  ///< some R_b is not positive definite: update skipped
+  kInvalidRotation = 1u << 6,      ///< the update left |omega| >= 2: rolled back (filter driver)
 };
 std::string describeHealth(std::uint32_t flags);
 
@@ -108,7 +112,8 @@ class Ekf {
   /// Removes the listed components (e.g. lost features).
   void remove(const std::vector<int>& indices);
 
-  /// Current numerical health of x and P (non-finite, asymmetric, negative variance).
+  /// Current numerical health of x and P: non-finite values (kNonFiniteState), negative
+  /// variance or asymmetry beyond round-off (kCovarianceNotPD).
   std::uint32_t health() const;
 
  private:

@@ -98,45 +98,56 @@ class RecursiveFilter {
     std::vector<int> used;
     model_.linearize(ekf_.x(), Rg_, obs, opt_.sigma_uv, rc, &batch, &fs.invalid,
                      &fs.first_problem, &used);
-    if (opt_.iterations <= 1) {
-      fs.iterations = 1;
-      fs.update = ekf_.update(batch, opt_.update);
-    } else {
-      // Iterated EKF (Gauss-Newton on the measurement): the prior (x^-, P^-) is restored before
-      // each relinearized update, whose residual is shifted by H_i (x_i - x^-).
-      const Eigen::VectorXd x_prior = ekf_.x();
-      const Eigen::MatrixXd P_prior = ekf_.P();
-      Eigen::VectorXd xi = x_prior;
-      for (int it = 0; it < opt_.iterations; ++it) {
-        if (it > 0) {
-          int invalid = 0;
-          MeasureStatus problem = MeasureStatus::Ok;
-          MeasurementBatch relin;
-          std::vector<int> used_i;
-          model_.linearize(xi, Rg_, obs, opt_.sigma_uv, rc, &relin, &invalid, &problem, &used_i);
-          if (invalid > fs.invalid) break;  // the iterate left the valid region: keep the last
-          batch = std::move(relin);
-          used = std::move(used_i);
-          batch.residual += batch.H * (xi - x_prior);
-          ekf_.mutableX() = x_prior;
-          ekf_.mutableP() = P_prior;
+    const Eigen::VectorXd x_prior = ekf_.x();
+    const Eigen::MatrixXd P_prior = ekf_.P();
+    fs.iterations = 1;
+    fs.update = ekf_.update(batch, opt_.update);
+    if (opt_.iterations > 1 && fs.update.applied) {
+      // Iterated EKF (Gauss-Newton on the measurement): each iteration restores the prior
+      // (x^-, P^-) and applies an update linearized at the latest iterate x_i, with the residual
+      // shifted by H_i (x_i - x^-). An iteration that fails (leaves the valid region, is not
+      // applied) is discarded and the last good iterate is kept.
+      Eigen::VectorXd xi = ekf_.x();
+      double step = (xi - x_prior).cwiseAbs().maxCoeff();
+      for (int it = 1; it < opt_.iterations && step > opt_.iteration_tol; ++it) {
+        int invalid = 0;
+        MeasureStatus problem = MeasureStatus::Ok;
+        MeasurementBatch relin;
+        std::vector<int> used_i;
+        model_.linearize(xi, Rg_, obs, opt_.sigma_uv, rc, &relin, &invalid, &problem, &used_i);
+        if (invalid > fs.invalid) break;  // the iterate left the valid region
+        relin.residual += relin.H * (xi - x_prior);
+        const Eigen::VectorXd x_good = ekf_.x();
+        const Eigen::MatrixXd P_good = ekf_.P();
+        ekf_.mutableX() = x_prior;
+        ekf_.mutableP() = P_prior;
+        UpdateStats st = ekf_.update(relin, opt_.update);
+        if (!st.applied) {
+          ekf_.mutableX() = x_good;
+          ekf_.mutableP() = P_good;
+          break;
         }
-        fs.update = ekf_.update(batch, opt_.update);
+        fs.update = std::move(st);
+        fs.invalid = invalid;
+        fs.first_problem = problem;
+        used = std::move(used_i);
         fs.iterations = it + 1;
-        if (!fs.update.applied) break;
-        const double step = (ekf_.x() - xi).cwiseAbs().maxCoeff();
+        step = (ekf_.x() - xi).cwiseAbs().maxCoeff();
         xi = ekf_.x();
-        if (!(step > opt_.iteration_tol)) break;
       }
     }
     fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
-    if (opt_.reference == ReferenceModel::Refine && fs.update.applied && fs.health == kHealthy)
-      refineReferences(obs, used, fs.update.gated_mask);
     const Eigen::Vector3d omega = ekf_.x().template segment<3>(idx::kWx);
     if (!incrementalRotationValid(omega)) {
-      fs.health |= kNonFiniteState;
+      // The update moved omega out of dq's domain (|omega| >= 2): roll it back and report.
+      ekf_.mutableX() = x_prior;
+      ekf_.mutableP() = P_prior;
+      fs.update.applied = false;
+      fs.health |= kInvalidRotation;
       return fs;
     }
+    if (opt_.reference == ReferenceModel::Refine && fs.update.applied && fs.health == kHealthy)
+      refineReferences(obs, used, fs.update.gated_mask);
     // R^k = R(dq(omega)) R^{k-1} (seed appendix).
     Rg_ = incrementalRotation(omega) * Rg_;
     if (opt_.reading == RotationReading::Reset) ekf_.mutableX().template segment<3>(idx::kWx).setZero();

@@ -234,9 +234,12 @@ void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vec
     row->invalid += t->invalid;
   }
   const double nan = std::numeric_limits<double>::quiet_NaN();
-  if (ok.empty()) {
+  if (ok.empty()) {  // every trial stopped: nothing can be computed (written NA)
     row->m_t = row->sigma_t = row->m_q = row->sigma_q = nan;
+    row->median_trial_sigma_t = row->median_trial_sigma_q = nan;
     row->final_normal_err_deg = row->final_beta_err_pct = nan;
+    row->mean_nis_per_dof = row->nees_static = nan;
+    row->r_s = row->r_c = Table1Row::kNotComputed;
     return;
   }
   const double K = static_cast<double>(ok.size());
@@ -316,6 +319,8 @@ std::string validateTable1Options(const Table1Options& o) {
   if (!(std::abs(o.scene.deg_per_frame * o.scene.frames) < 60.0))
     return "total rotation (--deg-per-frame x --frames) must stay under 60 degrees";
   if (!(o.beta0 > 0.0)) return "--beta0 must be positive";
+  if (!(o.N_var0.minCoeff() == 0.0) || !(o.N_var0.maxCoeff() >= 0.0))
+    return "the initial plane variances must be non-negative with one component 0 (the scale gauge)";
   if (!(o.beta_var0 >= 0.0)) return "--beta-var must be non-negative";
   for (double q : {o.q_translation, o.q_omega, o.q_beta, o.q_structure})
     if (!(q >= 0.0) || !std::isfinite(q)) return "process variances must be finite and non-negative";

@@ -17,7 +17,11 @@ std::string num(double v, int prec = 4) {
   return fmt::format("{:.{}f}", v, prec);
 }
 
-std::string frameOr(int r, int frames) { return r < 0 ? fmt::format(">{}", frames) : std::to_string(r); }
+std::string frameOr(int r, int frames) {
+  if (r == Table1Row::kNotComputed) return "NA";
+  return r < 0 ? fmt::format(">{}", frames) : std::to_string(r);
+}
+std::string frameCsv(int r) { return r == Table1Row::kNotComputed ? "NA" : std::to_string(r); }
 
 /// The paper's Table 1 (seed 000): m_t, sigma_t, m_q, sigma_q, r_s, r_c (-1 = ">100").
 struct PaperRow {
@@ -49,7 +53,7 @@ std::string table1Csv(const Table1Result& r) {
   for (const auto& row : r.rows)
     s += fmt::format("{},{},{},{},{},{},{},{}\n", row.formulation, num(row.noise_px, 1),
                      num(row.m_t, 5), num(row.sigma_t, 5), num(row.m_q, 5), num(row.sigma_q, 5),
-                     row.r_s, row.r_c);
+                     frameCsv(row.r_s), frameCsv(row.r_c));
   return s;
 }
 
@@ -84,6 +88,7 @@ std::string table1Markdown(const Table1Result& r, const std::string& command_lin
   s += "| noise px | plane sigma_t < point | plane sigma_q < point | plane r_s no later | plane r_c no later |\n";
   s += "|---|---|---|---|---|\n";
   auto later = [](int a, int b) {  // is a no later than b (-1 = never)
+    if (a == Table1Row::kNotComputed || b == Table1Row::kNotComputed) return false;
     if (a < 0) return b < 0;
     return b < 0 || a <= b;
   };

@@ -27,8 +27,9 @@ MeasureStatus PlaneModel::checkRay(const Eigen::Vector3d& N, double beta,
                                    const Eigen::Vector2d& uv) {
   if (!N.allFinite() || !std::isfinite(beta) || !uv.allFinite()) return MeasureStatus::NonFinite;
   if (!(N.norm() < kMaxPlaneNorm)) return MeasureStatus::PlaneThroughOrigin;
-  const double den = beta * (N.x() * uv.x() + N.y() * uv.y()) + N.z();
-  if (!(std::abs(den) * kMaxEta > 1.0)) return MeasureStatus::HorizonSingular;
+  const double den = beta * (N.x() * uv.x() + N.y() * uv.y()) + N.z();  // N . d = 1 / eta
+  const double nd = N.norm() * std::sqrt(beta * beta * uv.squaredNorm() + 1.0);
+  if (!(std::abs(den) > kMinGrazingSine * nd)) return MeasureStatus::HorizonSingular;
   return MeasureStatus::Ok;
 }
 
@@ -81,6 +82,7 @@ MeasureStatus PlaneModel::measure(const MotionContext& m, const Eigen::VectorXd&
 
 MeasureStatus PlaneModel::measure(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg, int i,
                                   Eigen::Vector2d* h, Eigen::MatrixXd* H) const {
+  if (i < 0 || i >= numPoints()) return MeasureStatus::UnknownFeature;
   const MotionContext m = MotionContext::fromState(x, Rg);
   Eigen::Matrix<double, 2, 7> Hm;
   Eigen::Matrix<double, 2, 3> Hn;

@@ -32,6 +32,7 @@ MeasureStatus PointModel::measure(const MotionContext& m, const Eigen::VectorXd&
 
 MeasureStatus PointModel::measure(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg, int i,
                                   Eigen::Vector2d* h, Eigen::MatrixXd* H) const {
+  if (i < 0 || i >= numPoints()) return MeasureStatus::UnknownFeature;
   const MotionContext m = MotionContext::fromState(x, Rg);
   Eigen::Matrix<double, 2, 7> Hm;
   Eigen::Vector2d Ha;

@@ -13,6 +13,7 @@ std::string_view toString(MeasureStatus s) {
     case MeasureStatus::HorizonSingular: return "ray parallel to the plane (horizon)";
     case MeasureStatus::PlaneThroughOrigin: return "plane through the image-plane origin";
     case MeasureStatus::NonFinite: return "non-finite value";
+    case MeasureStatus::UnknownFeature: return "observation of an unknown feature id";
   }
   return "unknown";
 }

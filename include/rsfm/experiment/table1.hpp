@@ -60,6 +60,7 @@ struct Table1Series {
 };
 
 struct Table1Row {
+  static constexpr int kNotComputed = -2;  ///< r_s / r_c when every trial stopped (written NA)
   std::string formulation;
   double noise_px = 0.0;
   double m_t = 0, sigma_t = 0, m_q = 0, sigma_q = 0;  ///< mean / RMS error (all comps, frames 1..F)

@@ -36,7 +36,9 @@ void linearizeObservations(const Model& model, const Eigen::VectorXd& x, const E
     Eigen::Matrix<double, 2, 7> Hm;
     Eigen::Matrix<double, 2, S> Hs;
     Eigen::Matrix2d Hu;
-    const MeasureStatus s = model.measure(m, x, o.id, &h, &Hm, &Hs, ref_cov ? &Hu : nullptr);
+    const MeasureStatus s = o.id < 0 || o.id >= model.numPoints()
+                                ? MeasureStatus::UnknownFeature
+                                : model.measure(m, x, o.id, &h, &Hm, &Hs, ref_cov ? &Hu : nullptr);
     if (s != MeasureStatus::Ok || !o.uv.allFinite()) {
       if (*invalid == 0) *first_problem = s == MeasureStatus::Ok ? MeasureStatus::NonFinite : s;
       ++*invalid;

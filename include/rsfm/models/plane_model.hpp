@@ -7,7 +7,8 @@
 //   p = eta ((N_Z + beta) u, (N_Z + beta) v, 1 - N_X u - N_Y v),
 //   eta = 1 / (beta N_X u + beta N_Y v + N_Z)                            (eq. 12)
 // N . X = 1 cannot represent a plane through the image-plane origin: |N| > kMaxPlaneNorm is
-// reported as PlaneThroughOrigin; a ray (nearly) parallel to the plane as HorizonSingular.
+// reported as PlaneThroughOrigin; a ray within kMinGrazingSine of parallel to the plane as
+// HorizonSingular.
 #include <Eigen/Core>
 #include <vector>
 
@@ -24,8 +25,11 @@ class PlaneModel {
   static constexpr int kStructurePerPoint = 3;
   /// |N| above this (plane closer than 1e-9 units to the image-plane origin) is reported.
   static constexpr double kMaxPlaneNorm = 1e9;
-  /// |eta| above this (ray within ~1e-9 of parallel to the plane) is reported.
-  static constexpr double kMaxEta = 1e9;
+  /// Rays meeting the plane at a grazing angle whose sine is below this (0.057 deg) are reported
+  /// as HorizonSingular: sin = |N . d| / (|N| |d|) with the ray direction d = (beta u, beta v, 1),
+  /// and N . d is exactly 1/eta. Such a point lies ~1000 plane-distances away and its
+  /// Jacobian (~eta^2) would let one observation collapse P where linearization fails.
+  static constexpr double kMinGrazingSine = 1e-3;
 
   PlaneModel() = default;
   /// `ref_uv`: first-frame normalized positions; `labels`: plane of each point (0..m-1).

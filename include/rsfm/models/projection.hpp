@@ -18,6 +18,7 @@ enum class MeasureStatus {
   HorizonSingular,      ///< the first-frame ray is (nearly) parallel to the plane
   PlaneThroughOrigin,   ///< |N| too large: the plane (nearly) contains the image-plane origin
   NonFinite,            ///< NaN/Inf in the state or the prediction
+  UnknownFeature,       ///< the observation's id is not a point of the model
 };
 std::string_view toString(MeasureStatus s);
 
