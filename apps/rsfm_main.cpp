@@ -71,6 +71,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   t1->add_option("--iterations", o.iterations, "update iterations (1: EKF, >1: iterated EKF)")
       ->capture_default_str();
+  t1->add_option("--iekf-iterations", o.iekf_iterations,
+                 "iterations of the plane-iekf row (<= 1: no such row)")
+      ->capture_default_str();
+  t1->add_option("--batch", o.batch, "add the batch (Ceres, maximum-likelihood) row (true/false)")
+      ->capture_default_str();
   t1->add_option("--reference", o.reference_model,
                  "reference positions: exact (as published) | inflate | refine")
       ->capture_default_str();

@@ -48,12 +48,12 @@ else
 fi
 [ -d "$D" ] && { echo "FAIL output directory $D was created by a failing run"; fail=$((fail + 1)); }
 
-# A small good run.
+# A small good run: 4 formulations (plane, plane-iekf, batch, point) x 3 noise levels.
 G="$TMP/good"
 if "$RSFM" experiment table1 --trials 2 --frames 20 --quiet --out "$G" 2>"$TMP/err.txt"; then
   hdr=$(head -1 "$G/table1.csv")
   rows=$(($(wc -l <"$G/table1.csv") - 1))
-  if [ "$hdr" = "formulation,noise_px,m_t,sigma_t,m_q,sigma_q,r_s,r_c" ] && [ "$rows" -eq 6 ] &&
+  if [ "$hdr" = "formulation,noise_px,m_t,sigma_t,m_q,sigma_q,r_s,r_c" ] && [ "$rows" -eq 12 ] &&
      [ -s "$G/table1.md" ] && [ -s "$G/fig1.png" ] && [ -s "$G/fig1.svg" ] &&
      ! ls "$G" | grep -q tmp && ! grep -qi nan "$G/table1.csv"; then
     pass=$((pass + 1)); echo "ok   good run: $(ls "$G" | tr '\n' ' ')"

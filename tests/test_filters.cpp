@@ -119,16 +119,26 @@ TEST(Table1, PlaneFilterAtTwoPixels) {
   o.seed = 1;
   o.noise_px = {2.0};
   const Table1Result r = runTable1(o);
-  ASSERT_EQ(r.rows.size(), 2u);
-  const Table1Row& plane = r.rows[0];
-  const Table1Row& point = r.rows[1];
-  ASSERT_EQ(plane.formulation, "plane");
+  ASSERT_EQ(r.rows.size(), 4u);  // plane, plane-iekf, batch, point
+  auto row = [&](const std::string& name) {
+    for (const auto& x : r.rows)
+      if (x.formulation == name) return x;
+    ADD_FAILURE() << "no row " << name;
+    return Table1Row{};
+  };
+  const Table1Row plane = row("plane"), point = row("point"), batch = row("batch");
   EXPECT_EQ(plane.failed, 0) << plane.first_failure;
   EXPECT_LT(plane.final_normal_err_deg, 1.0);
   EXPECT_LT(plane.final_beta_err_pct, 5.0);
   EXPECT_LT(plane.sigma_t, point.sigma_t);
   EXPECT_GE(plane.r_s, 1);  // converged (on the trial mean) within the sequence
   EXPECT_GE(plane.r_c, 1);
+  // The batch optimum on the same tracks is better than the filter and meets its own bound.
+  EXPECT_EQ(batch.failed, 0) << batch.first_failure;
+  EXPECT_LT(batch.sigma_t, plane.sigma_t);
+  EXPECT_LT(batch.final_normal_err_deg, plane.final_normal_err_deg);
+  EXPECT_GT(batch.crb_normal_deg, 0.0);
+  EXPECT_LT(batch.final_normal_err_deg, 2.0 * batch.crb_normal_deg);
 }
 
 TEST(Table1, ReproducibleWhateverTheThreadCount) {
@@ -136,6 +146,7 @@ TEST(Table1, ReproducibleWhateverTheThreadCount) {
   o.trials = 4;
   o.noise_px = {6.0};
   o.scene.frames = 30;
+  o.batch = false;
   o.threads = 1;
   const Table1Result a = runTable1(o);
   o.threads = 3;

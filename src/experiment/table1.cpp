@@ -10,6 +10,7 @@
 #include <stdexcept>
 #include <thread>
 
+#include "rsfm/batch/plane_batch.hpp"
 #include "rsfm/camera.hpp"
 #include "rsfm/geometry.hpp"
 #include "rsfm/models/plane_model.hpp"
@@ -36,10 +37,13 @@ struct Track {
   int nis_frames = 0;
   long gated = 0;
   long invalid = 0;
+  bool crb_ok = false;          // batch only: Cramer-Rao bounds at the optimum
+  double crb_beta_sd = 0.0;
+  double crb_normal_rad = 0.0;
 };
 
 struct Job {
-  Track plane, point;
+  Track plane, point, plane_iekf, batch;
 };
 
 Eigen::VectorXd motionPrior(int n, double beta0) {
@@ -111,6 +115,101 @@ void runFrames(RecursiveFilter<Model>& f, const std::vector<std::vector<Eigen::V
   }
 }
 
+/// The plane filter on all points; records into *tr and, if asked, returns its per-frame
+/// estimates (and final references) as a batch start.
+void runPlaneFilter(const Table1Options& o, const FilterOptions& fo,
+                    const std::vector<std::vector<Eigen::Vector2d>>& uv, const Eigen::Vector3d& n_true,
+                    Track* tr, PlaneBatchState* start) {
+  const int F = o.scene.frames;
+  const int Np = static_cast<int>(uv[0].size());
+  PlaneModel model(uv[0], std::vector<int>(Np, 0), 1);
+  Eigen::VectorXd x0 = motionPrior(10, o.beta0);
+  x0.segment<3>(7) = o.N0;
+  Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(10, 10);
+  P0(idx::kBeta, idx::kBeta) = o.beta_var0;
+  std::vector<bool> fixed(10, false);
+  for (int j = 0; j < 3; ++j) {
+    P0(7 + j, 7 + j) = o.N_var0[j];
+    fixed[7 + j] = o.N_var0[j] == 0.0;  // the scale gauge (paper: N_Z)
+  }
+  RecursiveFilter<PlaneModel> f(std::move(model), Ekf(x0, P0, fixed), fo);
+  recordFrame(f, o.N0, n_true, tr);
+  runFrames(f, uv, F, "plane", n_true,
+            [](const RecursiveFilter<PlaneModel>& ff, Eigen::Vector3d* N) {
+              *N = ff.ekf().x().segment<3>(7);
+              return true;
+            },
+            tr);
+  if (tr->failed) return;
+  // NEES of the free static parameters (beta, N_X, N_Y) at the last frame.
+  const auto& x = f.ekf().x();
+  const Eigen::Vector3d e(x[6] - o.scene.beta, x[7] - o.scene.plane.x(), x[8] - o.scene.plane.y());
+  const Eigen::Matrix3d Ps = f.ekf().P().block<3, 3>(6, 6);
+  tr->nees_static = e.dot(Ps.ldlt().solve(e));
+  if (start) {
+    start->R.clear();
+    start->t.clear();
+    for (int k = 0; k <= F; ++k) {
+      start->R.push_back(tr->q[k].toRotationMatrix());
+      start->t.push_back(Eigen::Vector3d(tr->t[k].x(), tr->t[k].y(), tr->t_zb[k]));
+    }
+    start->beta = f.beta();
+    start->N = {x.segment<3>(7)};
+    start->ref.clear();
+    for (int i = 0; i < Np; ++i) start->ref.push_back(f.model().reference(i));
+  }
+}
+
+/// The batch (maximum-likelihood) reference started from the plane filter's estimates.
+void runBatch(const Table1Options& o, const std::vector<std::vector<Eigen::Vector2d>>& uv,
+              double noise_px, const Eigen::Vector3d& n_true, const Track& plane,
+              const PlaneBatchState& start, Track* tr) {
+  const int F = o.scene.frames;
+  const int Np = static_cast<int>(uv[0].size());
+  if (plane.failed) {
+    tr->failed = true;
+    tr->failure = "batch: no start (the plane filter stopped)";
+    return;
+  }
+  PlaneBatchData data;
+  data.frames.resize(F + 1);
+  for (int k = 0; k <= F; ++k)
+    for (int i = 0; i < Np; ++i) data.frames[k].push_back({i, uv[k][i]});
+  data.labels.assign(Np, 0);
+  data.sigma_uv = std::max(noise_px, 1e-3) / o.scene.scale_px;
+  data.gauge_component = 2;
+  for (int j = 0; j < 3; ++j)
+    if (o.N_var0[j] == 0.0) data.gauge_component = j;
+  PlaneBatchOptions bo;
+  bo.estimate_references = o.reference_noise;
+  const PlaneBatchResult r = solvePlaneBatch(data, start, bo);
+  if (!r.converged) {
+    tr->failed = true;
+    tr->failure = "batch: " + r.message;
+    return;
+  }
+  const double beta = r.state.beta;
+  const Eigen::Vector3d N = r.state.N[0];
+  for (int k = 0; k <= F; ++k) {
+    const Eigen::Vector3d& t = r.state.t[k];
+    tr->t.push_back(Eigen::Vector3d(t.x(), t.y(), t.z() / beta));
+    tr->t_zb.push_back(t.z());
+    tr->q.push_back(canonical(Eigen::Quaterniond(r.state.R[k])));
+    tr->N.push_back(N);
+    tr->beta.push_back(beta);
+    tr->normal_err.push_back(normalAngle(N, n_true));
+  }
+  if (r.covariance_ok) {
+    // Cramer-Rao bounds: beta's standard deviation and the RMS angle of the unit normal,
+    // cov(n) = J cov(N) J^T with J = (I - n n^T) / |N|.
+    const Eigen::Vector3d n = N.normalized();
+    const Eigen::Matrix3d J = (Eigen::Matrix3d::Identity() - n * n.transpose()) / N.norm();
+    tr->crb_beta_sd = std::sqrt(std::max(0.0, r.var_beta));
+    tr->crb_normal_rad = std::sqrt(std::max(0.0, (J * r.cov_N[0] * J.transpose()).trace()));
+    tr->crb_ok = true;
+  }
+}
+
 Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, std::uint64_t noise_seed) {
   Job job;
   std::mt19937_64 rng(noise_seed);
@@ -119,7 +218,6 @@ Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, st
   const int F = o.scene.frames;
   const int Np = static_cast<int>(scene.points.size());
   const Eigen::Vector3d n_true = scene.unitNormal();
-  const double beta_true = o.scene.beta;
 
   FilterOptions fo;
   fo.reading = o.reading;
@@ -133,36 +231,15 @@ Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, st
   fo.reference_sigma = o.reference_noise ? fo.sigma_uv / std::sqrt(o.r_scale) : 0.0;
   fo.update.gate_probability = o.gate_probability;
 
-  // ---- plane filter (state 10) ----
-  {
-    PlaneModel model(uv[0], std::vector<int>(Np, 0), 1);
-    Eigen::VectorXd x0 = motionPrior(10, o.beta0);
-    x0.segment<3>(7) = o.N0;
-    Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(10, 10);
-    P0(idx::kBeta, idx::kBeta) = o.beta_var0;
-    std::vector<bool> fixed(10, false);
-    for (int j = 0; j < 3; ++j) {
-      P0(7 + j, 7 + j) = o.N_var0[j];
-      fixed[7 + j] = o.N_var0[j] == 0.0;  // the scale gauge (paper: N_Z)
-    }
-    RecursiveFilter<PlaneModel> f(std::move(model), Ekf(x0, P0, fixed), fo);
-    Track& tr = job.plane;
-    recordFrame(f, o.N0, n_true, &tr);
-    runFrames(f, uv, F, "plane", n_true,
-              [](const RecursiveFilter<PlaneModel>& ff, Eigen::Vector3d* N) {
-                *N = ff.ekf().x().segment<3>(7);
-                return true;
-              },
-              &tr);
-    if (!tr.failed) {
-      // NEES of the free static parameters (beta, N_X, N_Y) at the last frame.
-      const auto& x = f.ekf().x();
-      const Eigen::Vector3d e(x[6] - beta_true, x[7] - o.scene.plane.x(), x[8] - o.scene.plane.y());
-      const Eigen::Matrix3d Ps = f.ekf().P().block<3, 3>(6, 6);
-      Eigen::LDLT<Eigen::Matrix3d> l(Ps);
-      tr.nees_static = e.dot(l.solve(e));
-    }
+  // ---- plane filter (state 10), its iterated variant, and the batch reference ----
+  PlaneBatchState from_filter;
+  runPlaneFilter(o, fo, uv, n_true, &job.plane, &from_filter);
+  if (o.iekf_iterations > 1) {
+    FilterOptions fi = fo;
+    fi.iterations = o.iekf_iterations;
+    runPlaneFilter(o, fi, uv, n_true, &job.plane_iekf, nullptr);
   }
+  if (o.batch) runBatch(o, uv, noise_px, n_true, job.plane, from_filter, &job.batch);
 
   // ---- point filter (state 7 + N) ----
   {
@@ -290,8 +367,22 @@ void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vec
   };
   row->median_trial_sigma_t = median(trial_t);
   row->median_trial_sigma_q = median(trial_q);
-  row->nees_dof = name == "plane" ? 3 : 0;
-  if (name != "plane") row->nees_static = 0;
+  row->nees_dof = (name == "plane" || name == "plane-iekf") ? 3 : 0;
+  if (row->nees_dof == 0) row->nees_static = 0;
+  int crb_n = 0;
+  row->crb_beta_pct = row->crb_normal_deg = 0.0;
+  for (const Track* t : ok)
+    if (t->crb_ok) {
+      row->crb_beta_pct += 100.0 * t->crb_beta_sd / o.scene.beta;
+      row->crb_normal_deg += t->crb_normal_rad * kRad2Deg;
+      ++crb_n;
+    }
+  if (crb_n > 0) {
+    row->crb_beta_pct /= crb_n;
+    row->crb_normal_deg /= crb_n;
+  } else {
+    row->crb_beta_pct = row->crb_normal_deg = -1.0;
+  }
   // Convergence on the trial-averaged estimates (the curves of Fig. 1).
   std::vector<double> nerr(F + 1), berr(F + 1);
   std::vector<Eigen::Vector3d> Nm(F + 1, Eigen::Vector3d::Zero());
@@ -330,6 +421,7 @@ std::string validateTable1Options(const Table1Options& o) {
   if (o.point_gauge >= o.scene.points) return "--point-gauge must be below --points";
   if (o.threads < 0) return "--threads must be non-negative";
   if (o.iterations < 1) return "--iterations must be at least 1";
+  if (o.iekf_iterations < 0) return "--iekf-iterations must be non-negative";
   if (ReferenceModel r; !parseReferenceModel(o.reference_model, &r))
     return "--reference must be 'exact', 'inflate' or 'refine'";
   return {};
@@ -384,12 +476,19 @@ Table1Result runTable1(const Table1Options& o) {
   res.truth.n_y = o.scene.plane.y();
   res.truth.beta = o.scene.beta;
 
-  for (const std::string name : {"plane", "point"})
+  std::vector<std::string> names{"plane"};
+  if (o.iekf_iterations > 1) names.push_back("plane-iekf");
+  if (o.batch) names.push_back("batch");
+  names.push_back("point");
+  for (const std::string& name : names)
     for (int l = 0; l < L; ++l) {
       std::vector<const Track*> tracks;
       for (int i = 0; i < T; ++i) {
         const Job& jb = jobs[static_cast<size_t>(l) * T + i];
-        tracks.push_back(name == "plane" ? &jb.plane : &jb.point);
+        tracks.push_back(name == "plane"        ? &jb.plane
+                         : name == "plane-iekf" ? &jb.plane_iekf
+                         : name == "batch"      ? &jb.batch
+                                                : &jb.point);
       }
       Table1Row row;
       Table1Series ser;

@@ -35,6 +35,11 @@ struct Table1Options {
   bool reference_noise = true;
   double gate_probability = 0.999;  ///< per-point chi2 gate (<= 0 disables)
   int iterations = 1;            ///< measurement-update iterations (1 = EKF, > 1 = iterated EKF)
+  /// The "plane-iekf" row: the plane filter with this many update iterations (<= 1: no row).
+  int iekf_iterations = 5;
+  /// The "batch" row: Ceres bundle adjustment over all frames started from the plane filter,
+  /// reference positions estimated (maximum likelihood; include/rsfm/batch/plane_batch.hpp).
+  bool batch = true;
   /// Treatment of the noisy reference positions (exact = as published; see ReferenceModel).
   std::string reference_model = "refine";
   /// Point model: initial depths from the initial plane N0 with beta0 ("plane") or all equal to
@@ -53,7 +58,7 @@ struct Table1Options {
 
 /// Trial-averaged estimates of one formulation at one noise level, per frame 0..F.
 struct Table1Series {
-  std::string formulation;  ///< "point" or "plane"
+  std::string formulation;  ///< "plane", "plane-iekf", "batch" or "point"
   double noise_px = 0.0;
   std::vector<double> t_x, t_zb, q0, q2, n_x, n_y, beta;  ///< means over successful trials
   std::vector<double> normal_err_deg;  ///< mean over trials of each trial's normal error
@@ -71,7 +76,10 @@ struct Table1Row {
   int r_c = -1;  ///< first frame from which the mean beta stays within 5 % (-1: never)
   double final_normal_err_deg = 0;  ///< mean over trials, last frame
   double final_beta_err_pct = 0;    ///< mean |beta - beta_true| / beta_true over trials, last frame
-  double nees_static = 0;           ///< mean NEES of (beta, N_X, N_Y) at the last frame (plane only)
+  double nees_static = 0;           ///< mean NEES of (beta, N_X, N_Y) at the last frame (plane filters)
+  /// Batch only: mean over trials of the Cramer-Rao bounds at the optimum: beta's standard
+  /// deviation (% of beta) and the RMS angle of the unit normal (deg); -1 when not computed.
+  double crb_beta_pct = -1, crb_normal_deg = -1;
   int nees_dof = 0;                 ///< its dof per trial (0 when not computed)
   double mean_nis_per_dof = 0;      ///< mean NIS / dof over frames and trials
   long gated = 0;                   ///< points gated, summed over frames and trials

@@ -1,0 +1,190 @@
+// The Ceres batch reference: its residuals are the filter's measurement function, it reaches the
+// truth on exact data, improves on the filter with noise, and its covariance (the Cramer-Rao
+// bound) matches the spread of its estimates.
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "jacobian_checker.hpp"
+#include "rsfm/batch/plane_batch.hpp"
+#include "rsfm/chi2.hpp"
+#include "rsfm/geometry.hpp"
+#include "rsfm/models/plane_model.hpp"
+#include "rsfm/recursive_filter.hpp"
+#include "rsfm/sim/table1_scene.hpp"
+
+namespace rsfm {
+namespace {
+
+TEST(PlaneBatch, ResidualIsTheFiltersMeasurementFunction) {
+  const Eigen::Vector3d t(0.05, -0.03, 0.02), w(0.02, -0.04, 0.01), N(1.15, 0.1, 2.0);
+  const double beta = 0.9, sigma = 0.01;
+  const Eigen::Matrix3d Rb = Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix();
+  const Eigen::Vector2d ref(0.3, -0.2), z(0.31, -0.18);
+  Eigen::Vector2d r;
+  Eigen::Matrix<double, 2, 6> Jm;
+  Eigen::Vector2d Jb;
+  Eigen::Matrix<double, 2, 3> JN;
+  Eigen::Matrix2d Ju;
+  ASSERT_EQ(planeBatchResidual(t, w, Rb, beta, N, ref, z, sigma, &r, &Jm, &Jb, &JN, &Ju), MeasureStatus::Ok);
+  // The filter on the same state.
+  PlaneModel model({ref}, {0}, 1);
+  Eigen::VectorXd x(10);
+  x << t, w, beta, N;
+  Eigen::Vector2d h;
+  Eigen::MatrixXd H;
+  ASSERT_EQ(model.measure(x, Rb, 0, &h, &H), MeasureStatus::Ok);
+  EXPECT_LT((r * sigma + z - h).norm(), 1e-15);
+  EXPECT_LT((Jm * sigma - H.leftCols<6>()).norm(), 1e-12);
+  EXPECT_LT((Jb * sigma - H.col(6)).norm(), 1e-12);
+  EXPECT_LT((JN * sigma - H.rightCols<3>()).norm(), 1e-12);
+  // All Jacobians (including the reference's) against central differences.
+  auto f = [&](const Eigen::VectorXd& p, Eigen::VectorXd* y) {
+    Eigen::Vector2d rr;
+    if (planeBatchResidual(p.segment<3>(0), p.segment<3>(3), Rb, p[6], p.segment<3>(7), p.segment<2>(10), z,
+                           sigma, &rr, nullptr, nullptr, nullptr, nullptr) != MeasureStatus::Ok)
+      return false;
+    *y = rr;
+    return true;
+  };
+  Eigen::VectorXd p(12);
+  p << t, w, beta, N, ref;
+  Eigen::MatrixXd J(2, 12);
+  J << Jm, Jb, JN, Ju;
+  test::expectJacobian(f, p, J, 1e-6, "batch residual");
+}
+
+struct Sequence {
+  Table1Scene scene;
+  PlaneBatchData data;
+  std::vector<std::vector<Eigen::Vector2d>> uv;
+};
+
+Sequence makeSequence(double noise_px, std::uint64_t seed, int frames = 60) {
+  Sequence s;
+  Table1SceneOptions so;
+  so.frames = frames;
+  std::mt19937_64 rng(seed);
+  s.scene = makeTable1Scene(so, rng);
+  s.uv = addUniformNoise(s.scene.uv, noise_px, so.scale_px, rng);
+  const int Np = static_cast<int>(s.scene.points.size());
+  s.data.frames.resize(frames + 1);
+  for (int k = 0; k <= frames; ++k)
+    for (int i = 0; i < Np; ++i) s.data.frames[k].push_back({i, s.uv[k][i]});
+  s.data.labels.assign(Np, 0);
+  s.data.sigma_uv = std::max(noise_px, 0.01) / so.scale_px;
+  return s;
+}
+
+PlaneBatchState truthState(const Sequence& s) {
+  PlaneBatchState st;
+  for (size_t k = 0; k < s.scene.R.size(); ++k) {
+    st.R.push_back(s.scene.R[k]);
+    Eigen::Vector3d t = s.scene.t[k];
+    t.z() *= s.scene.options.beta;
+    st.t.push_back(t);
+  }
+  st.beta = s.scene.options.beta;
+  st.N = {s.scene.options.plane};
+  st.ref = s.scene.uv[0];
+  return st;
+}
+
+TEST(PlaneBatch, ReachesTheTruthOnExactData) {
+  Sequence s = makeSequence(0.0, 3);
+  PlaneBatchState start = truthState(s);
+  start.beta = 0.8;
+  start.N[0] += Eigen::Vector3d(0.2, -0.1, 0.0);  // N_Z is the gauge: stays at the truth
+  for (size_t k = 1; k < start.R.size(); ++k) {
+    start.R[k] = incrementalRotation(Eigen::Vector3d(0.01, -0.005, 0.003)) * start.R[k];
+    start.t[k] += Eigen::Vector3d(0.01, -0.02, 0.005);
+  }
+  const PlaneBatchResult r = solvePlaneBatch(s.data, start);
+  ASSERT_TRUE(r.converged) << r.message;
+  EXPECT_NEAR(r.state.beta, 1.0, 1e-6) << r.message;
+  EXPECT_LT((r.state.N[0] - s.scene.options.plane).norm(), 1e-6);
+  EXPECT_EQ(r.state.N[0].z(), s.scene.options.plane.z());  // the gauge never moves
+  EXPECT_LT(rotationAngle(r.state.R.back(), s.scene.R.back()), 1e-7);
+  EXPECT_LT(r.final_cost, 1e-12);
+}
+
+/// The filter's per-frame estimates as a batch start.
+PlaneBatchState filterStart(const Sequence& s) {
+  const int Np = static_cast<int>(s.scene.points.size());
+  FilterOptions fo;
+  fo.sigma_uv = s.data.sigma_uv;
+  Eigen::VectorXd x0 = Eigen::VectorXd::Zero(10);
+  x0[6] = 0.5;
+  x0.tail<3>() << 1.5, 0.5, 2.0;
+  Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(10, 10);
+  P0(6, 6) = P0(7, 7) = P0(8, 8) = 0.1;
+  std::vector<bool> fixed(10, false);
+  fixed[9] = true;
+  RecursiveFilter<PlaneModel> f(PlaneModel(s.uv[0], std::vector<int>(Np, 0)), Ekf(x0, P0, fixed), fo);
+  PlaneBatchState st;
+  st.R.push_back(Eigen::Matrix3d::Identity());
+  st.t.push_back(Eigen::Vector3d::Zero());
+  for (size_t k = 1; k < s.data.frames.size(); ++k) {
+    f.step(s.data.frames[k]);
+    st.R.push_back(f.rotation());
+    st.t.push_back(f.ekf().x().head<3>());
+  }
+  st.beta = f.beta();
+  st.N = {f.ekf().x().tail<3>()};
+  st.ref = s.uv[0];
+  return st;
+}
+
+TEST(PlaneBatch, ImprovesOnTheFilterAndItsCovarianceIsConsistent) {
+  // 30 trials at 2 px: the batch's final normal and beta errors are smaller on average than the
+  // filter's, and its NEES of (beta, N_X, N_Y) against its own covariance is in the chi2 band
+  // (the batch is the ML estimate: its covariance is the Cramer-Rao bound).
+  const int trials = 30;
+  double nees = 0, err_filter = 0, err_batch = 0;
+  int used = 0;
+  for (int trial = 0; trial < trials; ++trial) {
+    Sequence s = makeSequence(2.0, 100 + trial);
+    // Gaussian noise for the CRB check (uniform noise has the same variance; ML assumes Gaussian).
+    std::mt19937_64 rng(500 + trial);
+    std::normal_distribution<double> N01;
+    for (size_t k = 0; k < s.data.frames.size(); ++k)
+      for (auto& o : s.data.frames[k]) o.uv = s.scene.uv[k][o.id] + s.data.sigma_uv * Eigen::Vector2d(N01(rng), N01(rng));
+    for (size_t i = 0; i < s.uv[0].size(); ++i) s.uv[0][i] = s.data.frames[0][i].uv;
+    const PlaneBatchState start = filterStart(s);
+    const PlaneBatchResult r = solvePlaneBatch(s.data, start);
+    ASSERT_TRUE(r.converged) << r.message;
+    ASSERT_TRUE(r.covariance_ok);
+    const Eigen::Vector3d Nt = s.scene.options.plane;
+    err_filter += normalAngle(start.N[0], Nt);
+    err_batch += normalAngle(r.state.N[0], Nt);
+    Eigen::Vector3d e(r.state.beta - 1.0, r.state.N[0].x() - Nt.x(), r.state.N[0].y() - Nt.y());
+    Eigen::Matrix3d C;
+    C(0, 0) = r.var_beta;
+    C.block<2, 2>(1, 1) = r.cov_N[0].topLeftCorner<2, 2>();
+    C.block<1, 2>(0, 1) = r.cov_beta_N[0].head<2>();
+    C.block<2, 1>(1, 0) = r.cov_beta_N[0].head<2>().transpose();
+    nees += e.dot(C.ldlt().solve(e));
+    ++used;
+  }
+  nees /= used;
+  EXPECT_LT(err_batch, err_filter);
+  const double lo = chi2Quantile(0.005, 3.0 * used) / used, hi = chi2Quantile(0.995, 3.0 * used) / used;
+  std::cout << "batch: mean normal error " << err_batch / used * 180 / M_PI << " deg (filter "
+            << err_filter / used * 180 / M_PI << " deg); NEES " << nees << " in ["
+            << lo << ", " << hi << "]\n";
+  EXPECT_GT(nees, lo);
+  EXPECT_LT(nees, hi);
+}
+
+TEST(PlaneBatch, RejectsInconsistentSizes) {
+  PlaneBatchData d;
+  d.frames.resize(3);
+  d.labels = {0};
+  PlaneBatchState st;
+  const PlaneBatchResult r = solvePlaneBatch(d, st);
+  EXPECT_FALSE(r.converged);
+  EXPECT_NE(r.message.find("inconsistent"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace rsfm
