@@ -63,6 +63,23 @@ if "$RSFM" experiment table1 --trials 2 --frames 20 --quiet --out "$G" 2>"$TMP/e
 else
   fail=$((fail + 1)); echo "FAIL good run exited non-zero: $(cat "$TMP/err.txt")"
 fi
+# experiment planes: a small good run with the documented header, and a bad option.
+P="$TMP/planes"
+if "$RSFM" experiment planes --trials 1 --frames 15 --deg-per-frame 1 --noise 2 --quiet --out "$P" 2>"$TMP/err.txt"; then
+  hdr=$(head -1 "$P/planes.csv")
+  if [ "$hdr" = "method,noise_px,rms_t,rms_q,normal_err_deg,face_angle_err_deg,beta_err_pct,ratio_to_batch" ] &&
+     [ -s "$P/planes.md" ] && [ -s "$P/planes.png" ] && [ -s "$P/planes.svg" ] && ! ls "$P" | grep -q tmp; then
+    pass=$((pass + 1)); echo "ok   planes good run: $(ls "$P" | tr '\n' ' ')"
+  else
+    fail=$((fail + 1)); echo "FAIL planes good run: header '$hdr', files: $(ls "$P" | tr '\n' ' ')"
+  fi
+else
+  fail=$((fail + 1)); echo "FAIL planes good run exited non-zero: $(cat "$TMP/err.txt")"
+fi
+D2="$TMP/o2"
+check "planes: zero trials" 2 "$D2" -- experiment planes --out "$D2" --trials 0
+check "planes: too few points per face" 2 "$D2" -- experiment planes --out "$D2" --points-per-face 2
+
 # --help succeeds.
 if "$RSFM" experiment table1 --help >/dev/null 2>&1; then pass=$((pass + 1)); echo "ok   --help"; else fail=$((fail + 1)); echo "FAIL --help"; fi
 echo "$pass passed, $fail failed"

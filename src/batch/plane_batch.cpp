@@ -1,8 +1,10 @@
 #include "rsfm/batch/plane_batch.hpp"
 
 #include <ceres/ceres.h>
+#include <glog/logging.h>
 
 #include <memory>
+#include <mutex>
 
 #include "rsfm/camera.hpp"
 #include "rsfm/models/plane_model.hpp"
@@ -127,8 +129,23 @@ class ReferenceCost final : public ceres::SizedCostFunction<2, 2> {
 
 }  // namespace
 
+namespace {
+/// Ceres logs through glog; its messages (e.g. an unusable start, a rank-deficient covariance)
+/// are reported through PlaneBatchResult instead, so glog is initialized once and kept quiet.
+void quietGlog() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    if (!google::IsGoogleLoggingInitialized()) google::InitGoogleLogging("rsfm");
+    FLAGS_minloglevel = google::GLOG_FATAL;
+    FLAGS_logtostderr = false;
+    FLAGS_stderrthreshold = google::GLOG_FATAL;
+  });
+}
+}  // namespace
+
 PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchState& start,
                                  const PlaneBatchOptions& options) {
+  quietGlog();
   PlaneBatchResult res;
   const int F = static_cast<int>(data.frames.size()) - 1;
   const int P = static_cast<int>(data.labels.size());
@@ -222,7 +239,9 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
       blocks.emplace_back(N[j].data(), N[j].data());
       blocks.emplace_back(&beta, N[j].data());
     }
-    if (cov.Compute(blocks, &problem)) {
+    if (!cov.Compute(blocks, &problem)) {
+      res.message += " (covariance: rank-deficient Jacobian, no bound)";
+    } else {
       res.covariance_ok = true;
       cov.GetCovarianceBlock(&beta, &beta, &res.var_beta);
       for (int j = 0; j < data.num_planes; ++j) {

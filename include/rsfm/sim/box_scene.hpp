@@ -15,10 +15,10 @@ namespace rsfm {
 struct BoxSceneOptions {
   int frames = 100;               ///< frames after the reference frame 0
   int points_per_face = 30;
-  double side = 1.0;              ///< cube side (scene units)
-  Eigen::Vector3d centre{0.0, 0.0, 1.0};
-  double yaw_deg = 40.0;          ///< cube turned about y ...
-  double pitch_deg = -25.0;       ///< ... then about x (negative: its top face towards the camera)
+  double side = 2.0;              ///< cube side (scene units)
+  Eigen::Vector3d centre{0.0, 0.0, 3.0};
+  double yaw_deg = 30.0;          ///< cube turned about y ...
+  double pitch_deg = 25.0;        ///< ... then about x (three faces stay visible through the orbit)
   double deg_per_frame = 0.3;     ///< orbit about the y axis through the centre (30 deg in total)
   double beta = 1.0;
   double image_px = 512.0;
