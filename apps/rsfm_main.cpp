@@ -113,7 +113,7 @@ int main(int argc, char** argv) {
   pl->add_option("--yaw", po.scene.yaw_deg, "cube yaw (deg)")->capture_default_str();
   pl->add_option("--pitch", po.scene.pitch_deg, "cube pitch (deg)")->capture_default_str();
   pl->add_option("--reading", preading, "rotation reading: rate | reset")->capture_default_str();
-  pl->add_option("--n-var", po.n_var0, "initial plane perturbation and prior variance per component")
+  pl->add_option("--n-rel", po.n_rel, "initial plane error and prior sd per component, relative to |N|")
       ->capture_default_str();
   pl->add_option("--q-trans", po.q_translation, "process variance of t per frame")->capture_default_str();
   pl->add_option("--q-omega", po.q_omega, "process variance of omega per frame")->capture_default_str();

@@ -74,7 +74,7 @@ FilterOptions filterOptions(const PlanesOptions& o, double noise_px) {
 bool runPlaneFilter(const PlanesOptions& o, const FilterOptions& fo,
                     const std::vector<std::vector<Eigen::Vector2d>>& uv, const std::vector<int>& ids,
                     const std::vector<int>& lab, const std::vector<Eigen::Vector3d>& N0,
-                    int gauge_plane, int gauge_comp, std::vector<Eigen::Matrix3d>* Rs,
+                    const std::vector<double>& nvar, int gauge_plane, int gauge_comp, std::vector<Eigen::Matrix3d>* Rs,
                     std::vector<Eigen::Vector3d>* ts, std::vector<std::vector<Eigen::Vector3d>>* Ns,
                     std::vector<double>* betas, std::vector<Eigen::Vector2d>* refs, std::string* failure) {
   const int m = static_cast<int>(N0.size());
@@ -89,7 +89,7 @@ bool runPlaneFilter(const PlanesOptions& o, const FilterOptions& fo,
   std::vector<bool> fixed(n, false);
   for (int j = 0; j < m; ++j) {
     x0.segment<3>(7 + 3 * j) = N0[j];
-    for (int c = 0; c < 3; ++c) P0(7 + 3 * j + c, 7 + 3 * j + c) = o.n_var0;
+    for (int c = 0; c < 3; ++c) P0(7 + 3 * j + c, 7 + 3 * j + c) = nvar[j];
   }
   const int gi = 7 + 3 * gauge_plane + gauge_comp;
   P0(gi, gi) = 0.0;
@@ -138,15 +138,18 @@ TrialOut runTrial(const PlanesOptions& o, const BoxScene& scene, double noise_px
   }
   std::mt19937_64 rng(seed);
   const auto uv = addUniformNoise(scene.uv, noise_px, o.scene.scale_px, rng);
-  // Initial planes (seeded): truth + N(0, n_var0) on the free components.
+  // Initial planes (seeded): truth + N(0, (n_rel |N|)^2) on the free components.
   std::normal_distribution<double> N01;
   std::vector<Eigen::Vector3d> N0(m);
+  std::vector<double> nvar(m);
   std::vector<int> gauge(m);
   for (int j = 0; j < m; ++j) {
     gauge[j] = gaugeComponent(scene.planes[j]);
     N0[j] = scene.planes[j];
+    const double sd = o.n_rel * scene.planes[j].norm();
+    nvar[j] = sd * sd;
     for (int c = 0; c < 3; ++c)
-      if (c != gauge[j]) N0[j][c] += std::sqrt(o.n_var0) * N01(rng);
+      if (c != gauge[j]) N0[j][c] += sd * N01(rng);
   }
   const Truth truth{&scene, o.scene.beta};
   const FilterOptions fo = filterOptions(o, noise_px);
@@ -183,7 +186,7 @@ TrialOut runTrial(const PlanesOptions& o, const BoxScene& scene, double noise_px
     std::vector<std::vector<Eigen::Vector3d>> N_;
     std::vector<double> b_;
     std::vector<Eigen::Vector2d> r_;
-    if (!runPlaneFilter(o, fv, uv, all, scene.labels, N0, 0, gauge[0], &R_, &t_, &N_, &b_, &r_, &mt.failure)) {
+    if (!runPlaneFilter(o, fv, uv, all, scene.labels, N0, nvar, 0, gauge[0], &R_, &t_, &N_, &b_, &r_, &mt.failure)) {
       mt.failed = true;
       continue;
     }
@@ -208,7 +211,7 @@ TrialOut runTrial(const PlanesOptions& o, const BoxScene& scene, double noise_px
       std::vector<Eigen::Vector3d> t_;
       std::vector<std::vector<Eigen::Vector3d>> N_;
       std::vector<double> b_;
-      if (!runPlaneFilter(o, fo, uv, ids, std::vector<int>(ids.size(), 0), {N0[j]}, 0, gauge[j], &R_, &t_, &N_,
+      if (!runPlaneFilter(o, fo, uv, ids, std::vector<int>(ids.size(), 0), {N0[j]}, {nvar[j]}, 0, gauge[j], &R_, &t_, &N_,
                           &b_, nullptr, &mt.failure)) {
         mt.failed = true;
         mt.failure = "face " + std::to_string(j) + " " + mt.failure;
@@ -246,7 +249,7 @@ TrialOut runTrial(const PlanesOptions& o, const BoxScene& scene, double noise_px
         alpha = p.z();
         var = dpb.z() * dpb.z() * o.beta_var0;
         for (int c = 0; c < 3; ++c)
-          if (c != gauge[l]) var += dpN(2, c) * dpN(2, c) * o.n_var0;
+          if (c != gauge[l]) var += dpN(2, c) * dpN(2, c) * nvar[l];
       }
       x0[7 + i] = alpha;
       P0(7 + i, 7 + i) = std::max(var, 1e-6);
@@ -360,7 +363,7 @@ std::string validatePlanesOptions(const PlanesOptions& o) {
   if (!(std::abs(o.scene.deg_per_frame * o.scene.frames) < 60.0))
     return "total rotation (--deg-per-frame x --frames) must stay under 60 degrees";
   if (!(o.beta0 > 0.0) || !(o.beta_var0 >= 0.0)) return "--beta0 must be positive, --beta-var non-negative";
-  if (!(o.n_var0 > 0.0)) return "--n-var must be positive";
+  if (!(o.n_rel > 0.0) || !std::isfinite(o.n_rel)) return "--n-rel must be positive";
   for (double q : {o.q_translation, o.q_omega, o.q_beta})
     if (!(q >= 0.0) || !std::isfinite(q)) return "process variances must be finite and non-negative";
   if (ReferenceModel r; !parseReferenceModel(o.reference_model, &r))

@@ -72,8 +72,8 @@ std::string planesMarkdown(const PlanesResult& r, const std::string& command_lin
   s += fmt::format("| scene | cube side {}, centre ({}, {}, {}), yaw {} deg, pitch {} deg, orbit {} deg/frame about its centre, {} frames, {} points per face, s = {} px, {} px image |\n",
                    sc.side, sc.centre.x(), sc.centre.y(), sc.centre.z(), sc.yaw_deg, sc.pitch_deg, sc.deg_per_frame,
                    sc.frames, sc.points_per_face, sc.scale_px, sc.image_px);
-  s += fmt::format("| prior | beta0 {} (var {}); planes: truth + N(0, {}) on each free component, variance {}; gauge: each plane's largest component at its true value (planes-rigid, batch: plane 0's only) |\n",
-                   o.beta0, o.beta_var0, o.n_var0, o.n_var0);
+  s += fmt::format("| prior | beta0 {} (var {}); planes: truth + N(0, ({} |N|)^2) on each free component, the same variance; gauge: each plane's largest component at its true value (planes-rigid, batch: plane 0's only) |\n",
+                   o.beta0, o.beta_var0, o.n_rel);
   s += fmt::format("| filters | reading {}, q_trans {:g}, q_omega {:g}, q_beta {:g}, gate {:g}, reference {}, iekf iterations {} |\n",
                    toString(o.reading), o.q_translation, o.q_omega, o.q_beta, o.gate_probability, o.reference_model,
                    o.iekf_iterations);

@@ -26,9 +26,11 @@ struct PlanesOptions {
   BoxSceneOptions scene;
   RotationReading reading = RotationReading::Reset;
   double beta0 = 0.5, beta_var0 = 0.1;  ///< as Table 1
-  /// Initial planes: truth + N(0, n_var0) on each free component (seeded per trial), prior
-  /// variance n_var0; the gauge component (largest |N| of the plane) is set to its true value.
-  double n_var0 = 0.1;
+  /// Initial planes: truth + N(0, (n_rel |N|)^2) on each free component (seeded per trial), the
+  /// same prior variance; the gauge component (largest |N| of the plane) is set to its true value.
+  /// Relative to |N| (= 1 / distance), so near and far faces start equally far off in angle
+  /// (~n_rel rad).
+  double n_rel = 0.1;
   double q_translation = 3e-4, q_omega = 1e-4, q_beta = 0.0;  ///< per frame (docs/filter.md)
   double gate_probability = 0.999;
   std::string reference_model = "refine";  ///< exact | inflate | refine (docs/filter.md)
