@@ -61,8 +61,9 @@ struct FilterOptions {
   /// Standard deviation of a reference position (normalized units); < 0: sigma_uv.
   double reference_sigma = -1.0;
   /// Iterated EKF: maximum Gauss-Newton iterations of the measurement update (1 = plain EKF).
-  /// Each iteration relinearizes h at the latest iterate x_i and applies
-  /// x_{i+1} = x^- + K_i (z - h(x_i) - H_i (x^- - x_i)); P from the last linearization.
+  /// Each iteration relinearizes h at the latest iterate x_i; its Gauss-Newton point
+  /// x^- + K_i (z - h(x_i) - H_i (x^- - x_i)) is approached with backtracking on the MAP cost
+  /// (see iterate()); P from the last linearization.
   int iterations = 1;
   /// Stop iterating when the step |x_{i+1} - x_i| (infinity norm, state units) falls below this.
   double iteration_tol = 1e-9;
@@ -102,40 +103,7 @@ class RecursiveFilter {
     const Eigen::MatrixXd P_prior = ekf_.P();
     fs.iterations = 1;
     fs.update = ekf_.update(batch, opt_.update);
-    if (opt_.iterations > 1 && fs.update.applied) {
-      // Iterated EKF (Gauss-Newton on the measurement): each iteration restores the prior
-      // (x^-, P^-) and applies an update linearized at the latest iterate x_i, with the residual
-      // shifted by H_i (x_i - x^-). An iteration that fails (leaves the valid region, is not
-      // applied) is discarded and the last good iterate is kept.
-      Eigen::VectorXd xi = ekf_.x();
-      double step = (xi - x_prior).cwiseAbs().maxCoeff();
-      for (int it = 1; it < opt_.iterations && step > opt_.iteration_tol; ++it) {
-        int invalid = 0;
-        MeasureStatus problem = MeasureStatus::Ok;
-        MeasurementBatch relin;
-        std::vector<int> used_i;
-        model_.linearize(xi, Rg_, obs, opt_.sigma_uv, rc, &relin, &invalid, &problem, &used_i);
-        if (invalid > fs.invalid) break;  // the iterate left the valid region
-        relin.residual += relin.H * (xi - x_prior);
-        const Eigen::VectorXd x_good = ekf_.x();
-        const Eigen::MatrixXd P_good = ekf_.P();
-        ekf_.mutableX() = x_prior;
-        ekf_.mutableP() = P_prior;
-        UpdateStats st = ekf_.update(relin, opt_.update);
-        if (!st.applied) {
-          ekf_.mutableX() = x_good;
-          ekf_.mutableP() = P_good;
-          break;
-        }
-        fs.update = std::move(st);
-        fs.invalid = invalid;
-        fs.first_problem = problem;
-        used = std::move(used_i);
-        fs.iterations = it + 1;
-        step = (ekf_.x() - xi).cwiseAbs().maxCoeff();
-        xi = ekf_.x();
-      }
-    }
+    if (opt_.iterations > 1 && fs.update.applied) iterate(obs, rc, x_prior, P_prior, &batch, &used, &fs);
     fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
     const Eigen::Vector3d omega = ekf_.x().template segment<3>(idx::kWx);
     if (!incrementalRotationValid(omega)) {
@@ -179,6 +147,102 @@ class RecursiveFilter {
     while (static_cast<int>(ref_cov_.size()) < model_.numPoints())
       ref_cov_.push_back(Eigen::Matrix2d::Identity() * s2);
   }
+  /// Iterated EKF with backtracking (FilterOptions::iterations > 1). Gauss-Newton on the MAP cost
+  ///   J(x) = sum_b r_b(x)^T R_b^-1 r_b(x) + (x - x^-)^T P^-^-1 (x - x^-)
+  /// over the observations accepted by the first update: each GN point comes from an update of
+  /// the prior linearized at the current iterate (residual shifted by H_i (x_i - x^-)); the step
+  /// towards it is halved (up to 3 times) until J decreases, so the first step is a damped EKF
+  /// step. Stops on a step below iteration_tol, or when no step decreases J (the iterate is kept).
+  /// The covariance is the one from the last linearization.
+  void iterate(const std::vector<Observation>& obs, const std::vector<Eigen::Matrix2d>* rc,
+               const Eigen::VectorXd& x_prior, const Eigen::MatrixXd& P_prior, MeasurementBatch* batch,
+               std::vector<int>* used, FrameStats* fs) {
+    std::vector<char> accepted(obs.size(), 0);
+    for (size_t b = 0; b < used->size(); ++b)
+      if (b >= fs->update.gated_mask.size() || !fs->update.gated_mask[b]) accepted[(*used)[b]] = 1;
+    const std::vector<int> f = ekf_.freeIndices();
+    Eigen::MatrixXd Pf = P_prior(f, f);
+    Pf.diagonal().array() += 1e-12 * std::max(1e-300, Pf.diagonal().maxCoeff());
+    const Eigen::LDLT<Eigen::MatrixXd> prior_ldlt(Pf);
+    const int invalid0 = fs->invalid;
+    auto cost = [&](const Eigen::VectorXd& x, double* out) {
+      MeasurementBatch b;
+      std::vector<int> u;
+      int inv = 0;
+      MeasureStatus pr = MeasureStatus::Ok;
+      model_.linearize(x, Rg_, obs, opt_.sigma_uv, rc, &b, &inv, &pr, &u);
+      if (inv > invalid0 || !b.residual.allFinite()) return false;
+      double c = 0.0;
+      for (size_t k = 0; k < u.size(); ++k) {
+        if (!accepted[u[k]]) continue;
+        const Eigen::Vector2d r = b.residual.template segment<2>(2 * k);
+        const Eigen::Matrix2d R = b.R.template block<2, 2>(2 * k, 0);
+        c += r.dot(R.ldlt().solve(r));
+      }
+      const Eigen::VectorXd dx = (x - x_prior)(f);
+      c += dx.dot(prior_ldlt.solve(dx));
+      *out = c;
+      return std::isfinite(c);
+    };
+    Eigen::VectorXd x_lin = x_prior;
+    double c_lin = 0.0;
+    if (!cost(x_lin, &c_lin)) return;  // keep the plain EKF update
+    Eigen::VectorXd x_gn = ekf_.x();
+    Eigen::MatrixXd P_gn = ekf_.P();
+    UpdateStats st_gn = fs->update;
+    std::vector<int> used_gn = *used;
+    for (int it = 0; it < opt_.iterations; ++it) {
+      const Eigen::VectorXd d = x_gn - x_lin;
+      bool ok = false;
+      Eigen::VectorXd x_acc;
+      double c_acc = 0.0, alpha = 1.0;
+      for (int ls = 0; ls < 4 && !ok; ++ls, alpha *= 0.5) {
+        const Eigen::VectorXd xt = x_lin + alpha * d;
+        double c = 0.0;
+        if (cost(xt, &c) && c < c_lin) ok = true, x_acc = xt, c_acc = c;
+      }
+      if (!ok) {  // no step decreases J: stay at the current iterate
+        ekf_.mutableX() = x_lin;
+        ekf_.mutableP() = P_gn;
+        fs->update = st_gn;
+        *used = used_gn;
+        fs->iterations = it + 1;
+        return;
+      }
+      ekf_.mutableX() = x_acc;
+      ekf_.mutableP() = P_gn;
+      fs->update = st_gn;
+      *used = used_gn;
+      fs->iterations = it + 1;
+      const double step = (x_acc - x_lin).cwiseAbs().maxCoeff();
+      x_lin = x_acc;
+      c_lin = c_acc;
+      if (!(step > opt_.iteration_tol) || it + 1 >= opt_.iterations) return;
+      // Next Gauss-Newton point: update of the prior linearized at x_lin.
+      MeasurementBatch relin;
+      std::vector<int> used_i;
+      int invalid = 0;
+      MeasureStatus problem = MeasureStatus::Ok;
+      model_.linearize(x_lin, Rg_, obs, opt_.sigma_uv, rc, &relin, &invalid, &problem, &used_i);
+      if (invalid > invalid0) return;
+      relin.residual += relin.H * (x_lin - x_prior);
+      ekf_.mutableX() = x_prior;
+      ekf_.mutableP() = P_prior;
+      UpdateStats st = ekf_.update(relin, opt_.update);
+      if (!st.applied) {
+        ekf_.mutableX() = x_lin;
+        ekf_.mutableP() = P_gn;
+        return;
+      }
+      x_gn = ekf_.x();
+      P_gn = ekf_.P();
+      st_gn = std::move(st);
+      used_gn = std::move(used_i);
+      *batch = std::move(relin);
+      ekf_.mutableX() = x_lin;  // until the line search accepts a point
+    }
+  }
+
   void refineReferences(const std::vector<Observation>& obs, const std::vector<int>& used,
                         const std::vector<std::uint8_t>& gated) {
     const MotionContext m = MotionContext::fromState(ekf_.x(), Rg_);
