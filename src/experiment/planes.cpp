@@ -10,6 +10,7 @@
 
 #include "rsfm/batch/plane_batch.hpp"
 #include "rsfm/camera.hpp"
+#include "rsfm/experiment/parallel.hpp"
 #include "rsfm/geometry.hpp"
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/models/point_model.hpp"
@@ -386,25 +387,11 @@ PlanesResult runPlanes(const PlanesOptions& o) {
   }
   res.faces = scenes[0].faces();
   std::vector<TrialOut> outs(static_cast<size_t>(L) * T);
-  std::atomic<int> next{0}, done{0};
-  std::mutex mu;
-  int nthreads = o.threads > 0 ? o.threads : static_cast<int>(std::thread::hardware_concurrency());
-  nthreads = std::clamp(nthreads, 1, L * T);
-  auto worker = [&] {
-    for (int j; (j = next.fetch_add(1)) < L * T;) {
-      const int l = j / T, i = j % T;
-      const auto key = static_cast<std::uint64_t>(std::llround(o.noise_px[l] * 1000.0)) + 1;
-      outs[j] = runTrial(o, scenes[i], o.noise_px[l], mixSeed(o.seed, static_cast<std::uint64_t>(i), key));
-      const int d = ++done;
-      if (o.progress) {
-        std::lock_guard<std::mutex> lk(mu);
-        o.progress(d, L * T);
-      }
-    }
-  };
-  std::vector<std::thread> pool;
-  for (int k = 0; k < nthreads; ++k) pool.emplace_back(worker);
-  for (auto& th : pool) th.join();
+  runJobs(L, T, o.threads,
+          [&](int l, int i) {
+            outs[static_cast<size_t>(l) * T + i] = runTrial(o, scenes[i], o.noise_px[l], noiseSeed(o.seed, i, o.noise_px[l]));
+          },
+          o.progress);
 
   const double nan = std::numeric_limits<double>::quiet_NaN();
   for (size_t mi = 0; mi < kMethods.size(); ++mi) {

@@ -12,6 +12,7 @@
 
 #include "rsfm/batch/plane_batch.hpp"
 #include "rsfm/camera.hpp"
+#include "rsfm/experiment/parallel.hpp"
 #include "rsfm/geometry.hpp"
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/models/point_model.hpp"
@@ -441,27 +442,11 @@ Table1Result runTable1(const Table1Options& o) {
     scenes.push_back(makeTable1Scene(o.scene, rng));
   }
   std::vector<Job> jobs(static_cast<size_t>(L) * T);
-  std::atomic<int> next{0}, done{0};
-  std::mutex mu;
-  int nthreads = o.threads > 0 ? o.threads : static_cast<int>(std::thread::hardware_concurrency());
-  nthreads = std::clamp(nthreads, 1, L * T);
-  auto worker = [&] {
-    for (int j; (j = next.fetch_add(1)) < L * T;) {
-      const int l = j / T, i = j % T;
-      // Noise seeded by the level's value (in 1/1000 px), not its position in the list, so a
-      // level gets the same noise whatever other levels run with it.
-      const auto level_key = static_cast<std::uint64_t>(std::llround(o.noise_px[l] * 1000.0)) + 1;
-      jobs[j] = runJob(o, scenes[i], o.noise_px[l], mixSeed(o.seed, static_cast<std::uint64_t>(i), level_key));
-      const int d = ++done;
-      if (o.progress) {
-        std::lock_guard<std::mutex> lk(mu);
-        o.progress(d, L * T);
-      }
-    }
-  };
-  std::vector<std::thread> pool;
-  for (int k = 0; k < nthreads; ++k) pool.emplace_back(worker);
-  for (auto& th : pool) th.join();
+  runJobs(L, T, o.threads,
+          [&](int l, int i) {
+            jobs[static_cast<size_t>(l) * T + i] = runJob(o, scenes[i], o.noise_px[l], noiseSeed(o.seed, i, o.noise_px[l]));
+          },
+          o.progress);
 
   // Truth series (the scene's motion is the same in every trial).
   const Table1Scene& s0 = scenes[0];

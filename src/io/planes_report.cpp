@@ -17,11 +17,6 @@ std::string num(double v, int prec = 4) {
   return fmt::format("{:.{}f}", v, prec);
 }
 
-std::string shellQuote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
 
 }  // namespace
 
@@ -99,14 +94,7 @@ void writePlanesReport(const PlanesResult& r, const std::filesystem::path& dir, 
   const auto data = files.write(dir / "planes_data.csv", planesFigureData(r));
   const auto png = files.temp(dir / "planes.png");
   const auto svg = files.temp(dir / "planes.svg");
-  const std::string script = scriptsDirectory() + "/plot_planes.py";
-  const std::string cmd = "MPLBACKEND=Agg " + shellQuote(pythonInterpreter()) + " " + shellQuote(script) + " " +
-                          shellQuote(data.string()) + " " + shellQuote(png.string()) + " " +
-                          shellQuote(svg.string()) + " 1>&2";
-  const int rc = std::system(cmd.c_str());
-  if (rc != 0)
-    throw std::runtime_error("figure failed: " + script + " exited with status " + std::to_string(rc) +
-                             " (needs python3-matplotlib; see scripts/install-deps.sh)");
+  runPlotScript("plot_planes.py", data, png, svg);
   files.commit();
 }
 

@@ -205,6 +205,18 @@ static std::string shellQuote(const std::string& s) {
   return q + "'";
 }
 
+void runPlotScript(const std::string& script, const std::filesystem::path& data,
+                   const std::filesystem::path& png, const std::filesystem::path& svg) {
+  const std::string path = scriptsDirectory() + "/" + script;
+  const std::string cmd = "MPLBACKEND=Agg " + shellQuote(pythonInterpreter()) + " " + shellQuote(path) + " " +
+                          shellQuote(data.string()) + " " + shellQuote(png.string()) + " " +
+                          shellQuote(svg.string()) + " 1>&2";
+  const int rc = std::system(cmd.c_str());
+  if (rc != 0)
+    throw std::runtime_error("figure failed: " + path + " exited with status " + std::to_string(rc) +
+                             " (needs python3-matplotlib; see scripts/install-deps.sh)");
+}
+
 void writeTable1Report(const Table1Result& r, const std::filesystem::path& dir,
                        const std::string& command_line) {
   AtomicFileSet files;
@@ -213,14 +225,7 @@ void writeTable1Report(const Table1Result& r, const std::filesystem::path& dir,
   const auto data_tmp = files.write(dir / "fig1_data.csv", table1FigureData(r));
   const auto png = files.temp(dir / "fig1.png");
   const auto svg = files.temp(dir / "fig1.svg");
-  const std::string script = scriptsDirectory() + "/plot_table1.py";
-  const std::string cmd = "MPLBACKEND=Agg " + shellQuote(pythonInterpreter()) + " " +
-                          shellQuote(script) + " " + shellQuote(data_tmp.string()) + " " +
-                          shellQuote(png.string()) + " " + shellQuote(svg.string()) + " 1>&2";
-  const int rc = std::system(cmd.c_str());
-  if (rc != 0)
-    throw std::runtime_error("figure failed: " + script + " exited with status " +
-                             std::to_string(rc) + " (needs python3-matplotlib; see scripts/install-deps.sh)");
+  runPlotScript("plot_table1.py", data_tmp, png, svg);
   files.commit();
 }
 

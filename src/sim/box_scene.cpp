@@ -6,6 +6,7 @@
 #include <stdexcept>
 
 #include "rsfm/geometry.hpp"
+#include "rsfm/sim/orbit.hpp"
 
 namespace rsfm {
 
@@ -14,12 +15,7 @@ BoxScene makeBoxScene(const BoxSceneOptions& o, std::mt19937_64& rng) {
     throw std::runtime_error("box scene: frames, points, side, scale and beta must be positive");
   BoxScene s;
   s.options = o;
-  const double theta = o.deg_per_frame * M_PI / 180.0;
-  for (int k = 0; k <= o.frames; ++k) {
-    const Eigen::Matrix3d R = rotationY(k * theta);
-    s.R.push_back(R);
-    s.t.push_back((Eigen::Matrix3d::Identity() - R) * o.centre);
-  }
+  orbitAboutY(o.frames, o.deg_per_frame, o.centre, &s.R, &s.t);
   const Eigen::Matrix3d Rx =
       Eigen::AngleAxisd(o.pitch_deg * M_PI / 180.0, Eigen::Vector3d::UnitX()).toRotationMatrix();
   const Eigen::Matrix3d B = Rx * rotationY(o.yaw_deg * M_PI / 180.0);
@@ -50,15 +46,7 @@ BoxScene makeBoxScene(const BoxSceneOptions& o, std::mt19937_64& rng) {
   if (faces.size() < 2) throw std::runtime_error("box scene: fewer than 2 faces visible throughout");
 
   const double lim = o.margin * (o.image_px / 2.0) / o.scale_px;
-  auto visible = [&](const Eigen::Vector3d& X) {
-    for (int k = 0; k <= o.frames; ++k) {
-      const Eigen::Vector3d Xc = s.R[k] * X + s.t[k];
-      const double w = 1.0 + o.beta * Xc.z();
-      if (w < 0.1) return false;
-      if (std::abs(Xc.x() / w) > lim || std::abs(Xc.y() / w) > lim) return false;
-    }
-    return true;
-  };
+  auto visible = [&](const Eigen::Vector3d& X) { return visibleInAllFrames(s.R, s.t, o.beta, X, lim); };
   const double half = 0.5 * o.side * (1.0 - 2.0 * o.edge_margin);
   std::uniform_real_distribution<double> U(-half, half);
   for (size_t j = 0; j < faces.size(); ++j) {
@@ -77,12 +65,7 @@ BoxScene makeBoxScene(const BoxSceneOptions& o, std::mt19937_64& rng) {
       ++got;
     }
   }
-  s.uv.resize(o.frames + 1);
-  for (int k = 0; k <= o.frames; ++k)
-    for (const auto& X : s.points) {
-      const Eigen::Vector3d Xc = s.R[k] * X + s.t[k];
-      s.uv[k].push_back(Xc.head<2>() / (1.0 + o.beta * Xc.z()));
-    }
+  s.uv = projectAll(s.R, s.t, o.beta, s.points);
   return s;
 }
 

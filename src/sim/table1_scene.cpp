@@ -5,6 +5,7 @@
 
 #include "rsfm/camera.hpp"
 #include "rsfm/geometry.hpp"
+#include "rsfm/sim/orbit.hpp"
 
 namespace rsfm {
 
@@ -23,27 +24,14 @@ Table1Scene makeTable1Scene(const Table1SceneOptions& o, std::mt19937_64& rng) {
     throw std::runtime_error("table1 scene: frames, points, scale and beta must be positive");
   Table1Scene s;
   s.options = o;
-  const double theta = o.deg_per_frame * M_PI / 180.0;
-  for (int k = 0; k <= o.frames; ++k) {
-    const Eigen::Matrix3d R = rotationY(k * theta);
-    s.R.push_back(R);
-    s.t.push_back((Eigen::Matrix3d::Identity() - R) * o.centre);
-  }
+  orbitAboutY(o.frames, o.deg_per_frame, o.centre, &s.R, &s.t);
   // In-plane basis around the plane's intersection with the optical axis.
   const Eigen::Vector3d n = o.plane.normalized();
   const Eigen::Vector3d p0(0.0, 0.0, 1.0 / o.plane.z());
   Eigen::Vector3d e1 = Eigen::Vector3d::UnitY().cross(n).normalized();
   Eigen::Vector3d e2 = n.cross(e1).normalized();
   const double lim = o.margin * (o.image_px / 2.0) / o.scale_px;  // normalized half-width
-  auto visible = [&](const Eigen::Vector3d& X) {
-    for (int k = 0; k <= o.frames; ++k) {
-      const Eigen::Vector3d Xc = s.R[k] * X + s.t[k];
-      const double w = 1.0 + o.beta * Xc.z();
-      if (w < 0.1) return false;
-      if (std::abs(Xc.x() / w) > lim || std::abs(Xc.y() / w) > lim) return false;
-    }
-    return true;
-  };
+  auto visible = [&](const Eigen::Vector3d& X) { return visibleInAllFrames(s.R, s.t, o.beta, X, lim); };
   std::uniform_real_distribution<double> U(-3.0, 3.0);
   int tries = 0;
   while (static_cast<int>(s.points.size()) < o.points) {
@@ -52,12 +40,7 @@ Table1Scene makeTable1Scene(const Table1SceneOptions& o, std::mt19937_64& rng) {
     const Eigen::Vector3d X = p0 + U(rng) * e1 + U(rng) * e2;
     if (visible(X)) s.points.push_back(X);
   }
-  s.uv.resize(o.frames + 1);
-  for (int k = 0; k <= o.frames; ++k)
-    for (const auto& X : s.points) {
-      const Eigen::Vector3d Xc = s.R[k] * X + s.t[k];
-      s.uv[k].push_back(Xc.head<2>() / (1.0 + o.beta * Xc.z()));
-    }
+  s.uv = projectAll(s.R, s.t, o.beta, s.points);
   return s;
 }
 
