@@ -7,7 +7,7 @@
 #include "jacobian_checker.hpp"
 #include "rsfm/geometry.hpp"
 #include "rsfm/independent_filter.hpp"
-#include "rsfm/sim/orbit.hpp"
+#include "rsfm/sim/two_object_scene.hpp"
 
 namespace rsfm {
 namespace {
@@ -38,61 +38,6 @@ TEST(IndependentPlanesJacobian, TwoPlanesGenericAndOmegaZero) {
   }
 }
 
-/// Two objects, each a plane with its own rigid motion, seen by one camera (beta shared).
-struct TwoObjects {
-  std::vector<Eigen::Vector3d> N;                    // per object
-  std::vector<std::vector<Eigen::Matrix3d>> R;       // [object][frame]
-  std::vector<std::vector<Eigen::Vector3d>> t;       // [object][frame]
-  std::vector<Eigen::Vector3d> points;
-  std::vector<int> labels;
-  std::vector<std::vector<Eigen::Vector2d>> uv;      // [frame][point]
-};
-
-TwoObjects makeTwoObjects(int frames, std::mt19937_64& rng) {
-  TwoObjects s;
-  // Object 0: the Table 1 plane turning about the y axis through (0, 0, 2) (-0.4 deg/frame).
-  // Object 1: a plane tilted about x, centred at (0.45, 0, 1.2), turning about the x axis through its
-  // centre (0.35 deg/frame) while drifting.
-  s.N = {Eigen::Vector3d(2.0 / std::sqrt(3.0), 0.0, 2.0), Eigen::Vector3d::Zero()};
-  const Eigen::Vector3d n1(0.0, std::sin(0.35), std::cos(0.35)), c1(0.45, 0.0, 1.2);
-  s.N[1] = n1 / n1.dot(c1);
-  s.R.resize(2);
-  s.t.resize(2);
-  orbitAboutY(frames, -0.4, Eigen::Vector3d(0, 0, 2), &s.R[0], &s.t[0]);
-  for (int k = 0; k <= frames; ++k) {
-    const Eigen::Matrix3d Rk = Eigen::AngleAxisd(k * 0.35 * M_PI / 180.0, Eigen::Vector3d::UnitX()).toRotationMatrix();
-    s.R[1].push_back(Rk);
-    s.t[1].push_back((Eigen::Matrix3d::Identity() - Rk) * c1 + k * Eigen::Vector3d(-0.002, 0.003, 0.002));
-  }
-  std::uniform_real_distribution<double> U(-1.0, 1.0);
-  for (int j = 0; j < 2; ++j) {
-    const Eigen::Vector3d n = s.N[j].normalized();
-    const Eigen::Vector3d p0 = j == 0 ? Eigen::Vector3d(-0.25, 0.0, (1.0 + 0.25 * s.N[0].x()) / s.N[0].z()) : c1;
-    const Eigen::Vector3d e1 = Eigen::Vector3d::UnitY().cross(n).normalized(), e2 = n.cross(e1);
-    int got = 0, tries = 0;
-    while (got < 30) {
-      if (++tries > 20000) {
-        ADD_FAILURE() << "two-object scene: object " << j << " has no region visible in every frame";
-        return s;
-      }
-      const Eigen::Vector3d X = p0 + 0.35 * U(rng) * e1 + 0.35 * U(rng) * e2;
-      // Inside the image in every frame (the points are labelled; occlusion is not modelled).
-      if (!visibleInAllFrames(s.R[j], s.t[j], 1.0, X, 0.9)) continue;
-      s.points.push_back(X);
-      s.labels.push_back(j);
-      ++got;
-    }
-  }
-  s.uv.resize(frames + 1);
-  for (int k = 0; k <= frames; ++k)
-    for (size_t i = 0; i < s.points.size(); ++i) {
-      const int j = s.labels[i];
-      const Eigen::Vector3d Xc = s.R[j][k] * s.points[i] + s.t[j][k];
-      s.uv[k].push_back(Xc.head<2>() / (1.0 + Xc.z()));
-    }
-  return s;
-}
-
 struct ObjectErrors {
   double rot_deg[2], t_rel[2], normal_deg[2], beta;
 };
@@ -102,7 +47,9 @@ ObjectErrors runTwoObjects(double px, std::uint64_t seed) {
   ObjectErrors e{};
   const int frames = 100;
   std::mt19937_64 rng(seed);
-  const TwoObjects s = makeTwoObjects(frames, rng);
+  TwoObjectSceneOptions so;
+  so.frames = frames;
+  const TwoObjectScene s = makeTwoObjectScene(so, rng);
   EXPECT_EQ(s.points.size(), 60u);
   const double sigma = px / 256.0;  // on a 512 px image, s = 256
   std::normal_distribution<double> N01;
