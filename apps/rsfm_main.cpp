@@ -6,6 +6,7 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <iostream>
 #include <string>
 
@@ -22,6 +23,21 @@ constexpr int kBadInput = 2;
 int fail(int code, const std::string& msg) {
   fmt::print(stderr, "rsfm: error: {}\n", msg);
   return code;
+}
+
+/// Progress on stderr: a rewritten line on a terminal, else one line per 10 %.
+std::function<void(int, int)> progressReporter(std::string name) {
+  const bool tty = ::isatty(STDERR_FILENO);
+  return [tty, name = std::move(name), last = -1](int done, int total) mutable {
+    const int pct = 100 * done / total;
+    if (tty) {
+      fmt::print(stderr, "\r{}: {}/{} trials ({}%)", name, done, total, pct);
+      if (done == total) fmt::print(stderr, "\n");
+    } else if (pct / 10 != last / 10 || done == total) {
+      fmt::print(stderr, "{}: {}/{} trials ({}%)\n", name, done, total, pct);
+    }
+    last = pct;
+  };
 }
 
 std::string joinArgs(int argc, char** argv) {
@@ -167,17 +183,7 @@ int main(int argc, char** argv) {
     if (auto msg = rsfm::validateTable1Options(o); !msg.empty()) return fail(kBadInput, msg);
     if (auto msg = rsfm::io::ensureWritableDirectory(out); !msg.empty()) return fail(kBadInput, msg);
     if (!quiet) {
-      const bool tty = ::isatty(STDERR_FILENO);
-      o.progress = [tty, last = -1](int done, int total) mutable {
-        const int pct = 100 * done / total;
-        if (tty) {
-          fmt::print(stderr, "\rtable1: {}/{} trials ({}%)", done, total, pct);
-          if (done == total) fmt::print(stderr, "\n");
-        } else if (pct / 10 != last / 10 || done == total) {
-          fmt::print(stderr, "table1: {}/{} trials ({}%)\n", done, total, pct);
-        }
-        last = pct;
-      };
+      o.progress = progressReporter("table1");
     }
     rsfm::Table1Result res;
     try {
@@ -206,17 +212,7 @@ int main(int argc, char** argv) {
     if (auto msg = rsfm::validatePlanesOptions(po); !msg.empty()) return fail(kBadInput, msg);
     if (auto msg = rsfm::io::ensureWritableDirectory(pout); !msg.empty()) return fail(kBadInput, msg);
     if (!pquiet) {
-      const bool tty = ::isatty(STDERR_FILENO);
-      po.progress = [tty, last = -1](int done, int total) mutable {
-        const int pct = 100 * done / total;
-        if (tty) {
-          fmt::print(stderr, "\rplanes: {}/{} trials ({}%)", done, total, pct);
-          if (done == total) fmt::print(stderr, "\n");
-        } else if (pct / 10 != last / 10 || done == total) {
-          fmt::print(stderr, "planes: {}/{} trials ({}%)\n", done, total, pct);
-        }
-        last = pct;
-      };
+      po.progress = progressReporter("planes");
     }
     rsfm::PlanesResult res;
     try {

@@ -162,8 +162,6 @@ TrialOut runTrial(const PlanesOptions& o, const BoxScene& scene, double noise_px
     for (int j = 0; j < m; ++j) e += normalAngle(N[j], scene.normals[j]) / m;
     mt->normal_err[k] = e;
   };
-  auto toR = [](const Eigen::Matrix3d& R) { return R; };
-  (void)toR;
 
   // ---- planes-rigid (and its iterated variant) ----
   std::vector<Eigen::Matrix3d> Rs;
@@ -219,12 +217,9 @@ TrialOut runTrial(const PlanesOptions& o, const BoxScene& scene, double noise_px
         break;
       }
       for (int k = 0; k <= F; ++k) {
-        if (k > 0) addMotionError(truth, k, Eigen::Vector3d(t_[k].x(), t_[k].y(), t_[k].z() / b_[k]), R_[k], &mt, 0.0);
+        // Per frame, the faces' filters are averaged (weight 1/m); the RMS pools them all.
+        if (k > 0) addMotionError(truth, k, Eigen::Vector3d(t_[k].x(), t_[k].y(), t_[k].z() / b_[k]), R_[k], &mt, 1.0 / m);
         mt.normal_err[k] += normalAngle(N_[k][0], scene.normals[j]) / m;
-        if (k > 0) {
-          const Eigen::Vector3d et = Eigen::Vector3d(t_[k].x(), t_[k].y(), t_[k].z() / b_[k]) - scene.t[k];
-          mt.t_err2[k] += et.squaredNorm() / m;
-        }
       }
       mt.final_N[j] = N_.back()[0];
       mt.beta_err += std::abs(b_.back() - truth.beta) / truth.beta / m;
@@ -355,11 +350,7 @@ TrialOut runTrial(const PlanesOptions& o, const BoxScene& scene, double noise_px
 }  // namespace
 
 std::string validatePlanesOptions(const PlanesOptions& o) {
-  if (o.trials < 1) return "--trials must be at least 1";
-  if (o.noise_px.empty()) return "at least one noise level is required";
-  for (double s : o.noise_px)
-    if (!(s >= 0.0) || !std::isfinite(s)) return "noise levels must be finite and non-negative";
-  if (o.scene.frames < 1) return "--frames must be at least 1";
+  if (auto msg = validateTrialsNoiseFrames(o.trials, o.noise_px, o.scene.frames); !msg.empty()) return msg;
   if (o.scene.points_per_face < PlaneModel::kMinPoints) return "--points-per-face must be at least 5";
   if (!(std::abs(o.scene.deg_per_frame * o.scene.frames) < 60.0))
     return "total rotation (--deg-per-frame x --frames) must stay under 60 degrees";

@@ -400,11 +400,7 @@ void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vec
 }  // namespace
 
 std::string validateTable1Options(const Table1Options& o) {
-  if (o.trials < 1) return "--trials must be at least 1";
-  if (o.noise_px.empty()) return "at least one noise level is required";
-  for (double s : o.noise_px)
-    if (!(s >= 0.0) || !std::isfinite(s)) return "noise levels must be finite and non-negative";
-  if (o.scene.frames < 1) return "--frames must be at least 1";
+  if (auto msg = validateTrialsNoiseFrames(o.trials, o.noise_px, o.scene.frames); !msg.empty()) return msg;
   if (o.scene.points < PointModel::kMinPoints)
     return "--points must be at least 7 (A&P need 7 points; the plane model 5)";
   if (!(o.scene.scale_px > 0.0)) return "--scale-px must be positive";

@@ -3,19 +3,13 @@
 #include <fmt/format.h>
 
 #include <cmath>
-#include <cstdlib>
-#include <stdexcept>
 
-#include "rsfm/io/atomic_file.hpp"
-#include "rsfm/io/table1_report.hpp"
+#include "rsfm/io/report.hpp"
 
 namespace rsfm::io {
 namespace {
 
-std::string num(double v, int prec = 4) {
-  if (!std::isfinite(v)) return "NA";
-  return fmt::format("{:.{}f}", v, prec);
-}
+std::string num(double v, int prec = 4) { return formatNumber(v, prec); }
 
 
 }  // namespace
@@ -88,14 +82,8 @@ std::string planesFigureData(const PlanesResult& r) {
 }
 
 void writePlanesReport(const PlanesResult& r, const std::filesystem::path& dir, const std::string& command_line) {
-  AtomicFileSet files;
-  files.write(dir / "planes.csv", planesCsv(r));
-  files.write(dir / "planes.md", planesMarkdown(r, command_line));
-  const auto data = files.write(dir / "planes_data.csv", planesFigureData(r));
-  const auto png = files.temp(dir / "planes.png");
-  const auto svg = files.temp(dir / "planes.svg");
-  runPlotScript("plot_planes.py", data, png, svg);
-  files.commit();
+  writeFigureReport(dir, "planes", planesCsv(r), planesMarkdown(r, command_line), "planes_data",
+                    planesFigureData(r), "planes", "plot_planes.py");
 }
 
 }  // namespace rsfm::io

@@ -3,19 +3,14 @@
 #include <fmt/format.h>
 
 #include <cmath>
-#include <cstdlib>
 #include <map>
-#include <stdexcept>
 
-#include "rsfm/io/atomic_file.hpp"
+#include "rsfm/io/report.hpp"
 
 namespace rsfm::io {
 namespace {
 
-std::string num(double v, int prec = 4) {
-  if (!std::isfinite(v)) return "NA";
-  return fmt::format("{:.{}f}", v, prec);
-}
+std::string num(double v, int prec = 4) { return formatNumber(v, prec); }
 
 std::string frameOr(int r, int frames) {
   if (r == Table1Row::kNotComputed) return "NA";
@@ -189,44 +184,10 @@ std::string table1FigureData(const Table1Result& r) {
   return s;
 }
 
-std::string pythonInterpreter() {
-  if (const char* p = std::getenv("RSFM_PYTHON"); p && *p) return p;
-  return "/usr/bin/python3";
-}
-
-std::string scriptsDirectory() {
-  if (const char* p = std::getenv("RSFM_SCRIPTS_DIR"); p && *p) return p;
-  return RSFM_SCRIPTS_DIR;
-}
-
-static std::string shellQuote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
-void runPlotScript(const std::string& script, const std::filesystem::path& data,
-                   const std::filesystem::path& png, const std::filesystem::path& svg) {
-  const std::string path = scriptsDirectory() + "/" + script;
-  const std::string cmd = "MPLBACKEND=Agg " + shellQuote(pythonInterpreter()) + " " + shellQuote(path) + " " +
-                          shellQuote(data.string()) + " " + shellQuote(png.string()) + " " +
-                          shellQuote(svg.string()) + " 1>&2";
-  const int rc = std::system(cmd.c_str());
-  if (rc != 0)
-    throw std::runtime_error("figure failed: " + path + " exited with status " + std::to_string(rc) +
-                             " (needs python3-matplotlib; see scripts/install-deps.sh)");
-}
-
 void writeTable1Report(const Table1Result& r, const std::filesystem::path& dir,
                        const std::string& command_line) {
-  AtomicFileSet files;
-  files.write(dir / "table1.csv", table1Csv(r));
-  files.write(dir / "table1.md", table1Markdown(r, command_line));
-  const auto data_tmp = files.write(dir / "fig1_data.csv", table1FigureData(r));
-  const auto png = files.temp(dir / "fig1.png");
-  const auto svg = files.temp(dir / "fig1.svg");
-  runPlotScript("plot_table1.py", data_tmp, png, svg);
-  files.commit();
+  writeFigureReport(dir, "table1", table1Csv(r), table1Markdown(r, command_line), "fig1_data",
+                    table1FigureData(r), "fig1", "plot_table1.py");
 }
 
 }  // namespace rsfm::io

@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <functional>
 #include <mutex>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -19,6 +20,17 @@ namespace rsfm {
 inline std::uint64_t noiseSeed(std::uint64_t seed, int trial, double noise_px) {
   const auto key = static_cast<std::uint64_t>(std::llround(noise_px * 1000.0)) + 1;
   return mixSeed(seed, static_cast<std::uint64_t>(trial), key);
+}
+
+/// The checks every experiment makes of its trial count, noise levels and frame count; an empty
+/// string when they are fine, else a one-line message.
+inline std::string validateTrialsNoiseFrames(int trials, const std::vector<double>& noise_px, int frames) {
+  if (trials < 1) return "--trials must be at least 1";
+  if (noise_px.empty()) return "at least one noise level is required";
+  for (double s : noise_px)
+    if (!(s >= 0.0) || !std::isfinite(s)) return "noise levels must be finite and non-negative";
+  if (frames < 1) return "--frames must be at least 1";
+  return {};
 }
 
 /// Calls job(level, trial) for every level < levels and trial < trials on `threads` threads

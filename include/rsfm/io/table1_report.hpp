@@ -15,16 +15,6 @@ std::string table1Csv(const Table1Result& r);
 std::string table1Markdown(const Table1Result& r, const std::string& command_line);
 std::string table1FigureData(const Table1Result& r);
 
-/// Python interpreter for the plots: $RSFM_PYTHON, else /usr/bin/python3.
-std::string pythonInterpreter();
-/// Directory of the plot scripts: $RSFM_SCRIPTS_DIR, else the source tree's scripts/.
-std::string scriptsDirectory();
-
-/// Runs scripts/<script> DATA PNG SVG with the plotting interpreter (MPLBACKEND=Agg); throws
-/// std::runtime_error with a one-line message when it fails.
-void runPlotScript(const std::string& script, const std::filesystem::path& data,
-                   const std::filesystem::path& png, const std::filesystem::path& svg);
-
 /// Writes all outputs into dir all-or-nothing; throws std::runtime_error with a one-line
 /// message (nothing is left behind on failure).
 void writeTable1Report(const Table1Result& r, const std::filesystem::path& dir,
