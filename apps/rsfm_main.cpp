@@ -1,145 +1,28 @@
-// rsfm: command-line interface. Exit codes: 0 success, 1 runtime failure (numerical trouble,
-// plotting failed), 2 bad input (unknown subcommand or option, invalid value, unwritable output).
+// rsfm: command-line interface. Each command family registers itself from apps/cmd_*.cpp.
+// Exit codes (apps/cli_common.hpp): 0 success, 1 runtime failure, 2 bad input.
 #include <CLI/CLI.hpp>
-#include <fmt/format.h>
-#include <unistd.h>
 
-#include <cstdio>
-#include <filesystem>
-#include <functional>
-#include <iostream>
 #include <string>
+#include <vector>
 
-#include "rsfm/experiment/planes.hpp"
-#include "rsfm/experiment/table1.hpp"
-#include "rsfm/io/atomic_file.hpp"
-#include "rsfm/io/planes_report.hpp"
-#include "rsfm/io/table1_report.hpp"
+#include "cli_common.hpp"
 
-namespace {
-
-constexpr int kBadInput = 2;
-
-int fail(int code, const std::string& msg) {
-  fmt::print(stderr, "rsfm: error: {}\n", msg);
-  return code;
+namespace rsfm::cli::detail {
+std::string& invocationStorage();
 }
-
-/// Progress on stderr: a rewritten line on a terminal, else one line per 10 %.
-std::function<void(int, int)> progressReporter(std::string name) {
-  const bool tty = ::isatty(STDERR_FILENO);
-  return [tty, name = std::move(name), last = -1](int done, int total) mutable {
-    const int pct = 100 * done / total;
-    if (tty) {
-      fmt::print(stderr, "\r{}: {}/{} trials ({}%)", name, done, total, pct);
-      if (done == total) fmt::print(stderr, "\n");
-    } else if (pct / 10 != last / 10 || done == total) {
-      fmt::print(stderr, "{}: {}/{} trials ({}%)\n", name, done, total, pct);
-    }
-    last = pct;
-  };
-}
-
-std::string joinArgs(int argc, char** argv) {
-  std::string s = "rsfm";
-  for (int i = 1; i < argc; ++i) s += std::string(" ") + argv[i];
-  return s;
-}
-
-}  // namespace
 
 int main(int argc, char** argv) {
+  using namespace rsfm::cli;
+  {
+    std::string& s = detail::invocationStorage();
+    for (int i = 1; i < argc; ++i) s += std::string(" ") + argv[i];
+  }
   CLI::App app{"rsfm: recursive estimation of camera motion, focal length and planar structure"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "rsfm 0.1.0");
 
-  auto* exp = app.add_subcommand("experiment", "reproduce the papers' synthetic experiments");
-  exp->require_subcommand(1);
-  auto* t1 = exp->add_subcommand(
-      "table1", "Alon & Sclaroff Table 1 / Fig. 1: point vs plane filter on the same noisy tracks");
-
-  rsfm::Table1Options o;
-  std::string out = "out";
-  std::string reading = "reset";
-  bool quiet = false;
-  t1->add_option("--trials", o.trials, "trials per noise level")->capture_default_str();
-  t1->add_option("--seed", o.seed, "base random seed")->capture_default_str();
-  t1->add_option("--out", out, "output directory")->capture_default_str();
-  t1->add_option("--noise", o.noise_px, "noise standard deviations in px (comma-separated)")
-      ->delimiter(',')
-      ->capture_default_str();
-  t1->add_option("--frames", o.scene.frames, "frames after the reference frame")->capture_default_str();
-  t1->add_option("--points", o.scene.points, "points on the plane")->capture_default_str();
-  t1->add_option("--deg-per-frame", o.scene.deg_per_frame, "rotation about y per frame (deg)")
-      ->capture_default_str();
-  t1->add_option("--scale-px", o.scene.scale_px, "s: pixels per normalized unit (512 px image)")
-      ->capture_default_str();
-  t1->add_option("--reading", reading, "rotation reading: rate | reset")->capture_default_str();
-  t1->add_option("--beta0", o.beta0, "initial beta")->capture_default_str();
-  t1->add_option("--beta-var", o.beta_var0, "initial beta variance")->capture_default_str();
-  t1->add_option("--q-trans", o.q_translation, "process variance of t_X, t_Y, t_Z beta per frame")
-      ->capture_default_str();
-  t1->add_option("--q-omega", o.q_omega, "process variance of omega per frame")->capture_default_str();
-  t1->add_option("--q-beta", o.q_beta, "process variance of beta per frame")->capture_default_str();
-  t1->add_option("--q-structure", o.q_structure, "process variance of structure per frame")
-      ->capture_default_str();
-  t1->add_option("--r-scale", o.r_scale, "filter measurement variance / true noise variance")
-      ->capture_default_str();
-  t1->add_option("--gate", o.gate_probability, "chi-square gate probability per point (0: off)")
-      ->capture_default_str();
-  t1->add_option("--iterations", o.iterations, "update iterations (1: EKF, >1: iterated EKF)")
-      ->capture_default_str();
-  t1->add_option("--iekf-iterations", o.iekf_iterations,
-                 "iterations of the plane-iekf row (<= 1: no such row)")
-      ->capture_default_str();
-  t1->add_option("--batch", o.batch, "add the batch (Ceres, maximum-likelihood) row (true/false)")
-      ->capture_default_str();
-  t1->add_option("--reference", o.reference_model,
-                 "reference positions: exact (as published) | inflate | refine")
-      ->capture_default_str();
-  t1->add_option("--alpha-init", o.alpha_init, "point model initial depths: plane | constant")
-      ->capture_default_str();
-  t1->add_option("--alpha-var", o.alpha_var, "point model initial depth variance (<=0: propagate)")
-      ->capture_default_str();
-  t1->add_option("--point-gauge", o.point_gauge, "index of the point model's fixed depth (-1: centre)")
-      ->capture_default_str();
-  t1->add_option("--threads", o.threads, "worker threads (0: all cores)")->capture_default_str();
-  t1->add_option("--reference-noise", o.reference_noise,
-                 "add noise to the reference frame too (true/false)")
-      ->capture_default_str();
-  t1->add_flag("--quiet", quiet, "no progress on stderr");
-
-  auto* pl = exp->add_subcommand("planes", "multi-plane filters on a box scene vs a batch optimum");
-  rsfm::PlanesOptions po;
-  std::string pout = "out";
-  std::string preading = "reset";
-  bool pquiet = false;
-  pl->add_option("--trials", po.trials, "trials per noise level")->capture_default_str();
-  pl->add_option("--seed", po.seed, "base random seed")->capture_default_str();
-  pl->add_option("--out", pout, "output directory")->capture_default_str();
-  pl->add_option("--noise", po.noise_px, "noise standard deviations in px (comma-separated)")
-      ->delimiter(',')
-      ->capture_default_str();
-  pl->add_option("--frames", po.scene.frames, "frames after the reference frame")->capture_default_str();
-  pl->add_option("--points-per-face", po.scene.points_per_face, "points on each visible face")->capture_default_str();
-  pl->add_option("--deg-per-frame", po.scene.deg_per_frame, "orbit about the box centre per frame (deg)")
-      ->capture_default_str();
-  pl->add_option("--side", po.scene.side, "cube side (scene units)")->capture_default_str();
-  pl->add_option("--centre-z", po.scene.centre.z(), "cube centre depth (A&P z)")->capture_default_str();
-  pl->add_option("--yaw", po.scene.yaw_deg, "cube yaw (deg)")->capture_default_str();
-  pl->add_option("--pitch", po.scene.pitch_deg, "cube pitch (deg)")->capture_default_str();
-  pl->add_option("--reading", preading, "rotation reading: rate | reset")->capture_default_str();
-  pl->add_option("--n-rel", po.n_rel, "initial plane error and prior sd per component, relative to |N|")
-      ->capture_default_str();
-  pl->add_option("--q-trans", po.q_translation, "process variance of t per frame")->capture_default_str();
-  pl->add_option("--q-omega", po.q_omega, "process variance of omega per frame")->capture_default_str();
-  pl->add_option("--reference", po.reference_model, "reference positions: exact | inflate | refine")
-      ->capture_default_str();
-  pl->add_option("--iekf-iterations", po.iekf_iterations, "iterations of planes-rigid-iekf (<= 1: no row)")
-      ->capture_default_str();
-  pl->add_option("--batch", po.batch, "add the batch (Ceres) row (true/false)")->capture_default_str();
-  pl->add_option("--threads", po.threads, "worker threads (0: all cores)")->capture_default_str();
-  pl->add_flag("--quiet", pquiet, "no progress on stderr");
+  std::vector<Command> commands;
+  addExperimentCommands(app, commands);
 
   // Name an unknown command word explicitly (CLI11 would only say a subcommand is required).
   {
@@ -177,53 +60,7 @@ int main(int argc, char** argv) {
     return fail(kBadInput, msg + " (see rsfm --help)");
   }
 
-  if (t1->parsed()) {
-    if (!rsfm::parseRotationReading(reading, &o.reading))
-      return fail(kBadInput, "--reading must be 'rate' or 'reset', got '" + reading + "'");
-    if (auto msg = rsfm::validateTable1Options(o); !msg.empty()) return fail(kBadInput, msg);
-    if (auto msg = rsfm::io::ensureWritableDirectory(out); !msg.empty()) return fail(kBadInput, msg);
-    if (!quiet) {
-      o.progress = progressReporter("table1");
-    }
-    rsfm::Table1Result res;
-    try {
-      res = rsfm::runTable1(o);
-    } catch (const std::exception& e) {
-      return fail(1, e.what());
-    }
-    try {
-      rsfm::io::writeTable1Report(res, out, joinArgs(argc, argv));
-    } catch (const std::exception& e) {
-      return fail(1, e.what());
-    }
-    int failed = 0;
-    for (const auto& row : res.rows) failed += row.failed;
-    if (!quiet)
-      fmt::print(stderr, "table1: {:.1f} s; wrote {}/table1.csv, table1.md, fig1.png, fig1.svg\n",
-                 res.seconds, out);
-    if (failed > 0)
-      fmt::print(stderr, "rsfm: warning: {} trial runs stopped on numerical trouble (see table1.md)\n",
-                 failed);
-    return 0;
-  }
-  if (pl->parsed()) {
-    if (!rsfm::parseRotationReading(preading, &po.reading))
-      return fail(kBadInput, "--reading must be 'rate' or 'reset', got '" + preading + "'");
-    if (auto msg = rsfm::validatePlanesOptions(po); !msg.empty()) return fail(kBadInput, msg);
-    if (auto msg = rsfm::io::ensureWritableDirectory(pout); !msg.empty()) return fail(kBadInput, msg);
-    if (!pquiet) {
-      po.progress = progressReporter("planes");
-    }
-    rsfm::PlanesResult res;
-    try {
-      res = rsfm::runPlanes(po);
-      rsfm::io::writePlanesReport(res, pout, joinArgs(argc, argv));
-    } catch (const std::exception& e) {
-      return fail(1, e.what());
-    }
-    if (!pquiet)
-      fmt::print(stderr, "planes: {:.1f} s; wrote {}/planes.csv, planes.md, planes.png, planes.svg\n", res.seconds, pout);
-    return 0;
-  }
+  for (const Command& c : commands)
+    if (c.app->parsed()) return c.run();
   return fail(kBadInput, "no command given (see rsfm --help)");
 }

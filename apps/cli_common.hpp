@@ -1,0 +1,36 @@
+// Shared pieces of the rsfm command line: exit codes, the one-line error contract, progress.
+// Exit codes: 0 success, 1 runtime failure (numerical trouble, plotting failed), 2 bad input
+// (unknown subcommand or option, invalid value, malformed file, unwritable output).
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+#include <functional>
+#include <string>
+#include <vector>
+
+namespace rsfm::cli {
+
+constexpr int kBadInput = 2;
+constexpr int kRuntimeFailure = 1;
+
+/// Prints `rsfm: error: MSG` on one line of stderr and returns `code`.
+int fail(int code, const std::string& msg);
+
+/// Progress on stderr: a rewritten line on a terminal, else one line per 10 %.
+/// `unit` names what is counted ("trials", "frames").
+std::function<void(int, int)> progressReporter(std::string name, std::string unit = "trials");
+
+/// A registered command: the CLI11 subcommand and what runs when it was parsed.
+struct Command {
+  CLI::App* app = nullptr;
+  std::function<int()> run;
+};
+
+/// The whole command line as typed (recorded in reports).
+const std::string& invocation();
+
+// One registration function per command family (apps/cmd_*.cpp).
+void addExperimentCommands(CLI::App& app, std::vector<Command>& commands);
+
+}  // namespace rsfm::cli
