@@ -76,6 +76,9 @@ struct FrameStats {
   int invalid = 0;  ///< observations whose prediction failed (see MeasureStatus), not used
   MeasureStatus first_problem = MeasureStatus::Ok;
   std::uint32_t health = kHealthy;  ///< EKF health after the step (HealthFlag bits)
+  /// Observation index (into step()'s argument) of each measurement block; update.gated_mask
+  /// is aligned with it.
+  std::vector<int> used;
   bool ok() const { return health == kHealthy && update.applied; }
 };
 
@@ -116,6 +119,7 @@ class RecursiveFilter {
     }
     if (opt_.reference == ReferenceModel::Refine && fs.update.applied && fs.health == kHealthy)
       refineReferences(obs, used, fs.update.gated_mask);
+    fs.used = used;
     // R^k = R(dq(omega)) R^{k-1} (seed appendix).
     Rg_ = incrementalRotation(omega) * Rg_;
     if (opt_.reading == RotationReading::Reset) ekf_.mutableX().template segment<3>(idx::kWx).setZero();

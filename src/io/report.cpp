@@ -34,16 +34,26 @@ std::string scriptsDirectory() {
   return RSFM_SCRIPTS_DIR;
 }
 
-void runPlotScript(const std::string& script, const std::filesystem::path& data,
-                   const std::filesystem::path& png, const std::filesystem::path& svg) {
+void runScript(const std::string& script, const std::vector<std::string>& args) {
   const std::string path = scriptsDirectory() + "/" + script;
-  const std::string cmd = "MPLBACKEND=Agg " + shellQuote(pythonInterpreter()) + " " + shellQuote(path) + " " +
-                          shellQuote(data.string()) + " " + shellQuote(png.string()) + " " +
-                          shellQuote(svg.string()) + " 1>&2";
+  std::string cmd = "MPLBACKEND=Agg ";
+  cmd += shellQuote(pythonInterpreter());
+  cmd += ' ';
+  cmd += shellQuote(path);
+  for (const auto& a : args) {
+    cmd += ' ';
+    cmd += shellQuote(a);
+  }
+  cmd += " 1>&2";
   const int rc = std::system(cmd.c_str());
   if (rc != 0)
     throw std::runtime_error("figure failed: " + path + " exited with status " + std::to_string(rc) +
                              " (needs python3-matplotlib; see scripts/install-deps.sh)");
+}
+
+void runPlotScript(const std::string& script, const std::filesystem::path& data,
+                   const std::filesystem::path& png, const std::filesystem::path& svg) {
+  runScript(script, {data.string(), png.string(), svg.string()});
 }
 
 void writeFigureReport(const std::filesystem::path& dir, const std::string& stem, const std::string& csv,

@@ -104,3 +104,27 @@ void PlaneModel::linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
 }
 
 }  // namespace rsfm
+
+namespace rsfm {
+
+MeasureStatus PlaneModel::transferToReference(const Eigen::Vector3d& N, double beta, const Eigen::Matrix3d& R,
+                                              const Eigen::Vector3d& t, const Eigen::Vector2d& uv,
+                                              Eigen::Vector2d* uv_ref) {
+  if (!N.allFinite() || !std::isfinite(beta) || !R.allFinite() || !t.allFinite() || !uv.allFinite())
+    return MeasureStatus::NonFinite;
+  if (N.norm() > kMaxPlaneNorm) return MeasureStatus::PlaneThroughOrigin;
+  const Eigen::Vector3d m = R * N;
+  const Eigen::Vector3d d(beta * uv.x(), beta * uv.y(), 1.0);  // ray direction in camera k
+  const double den = m.dot(d);
+  if (std::abs(den) < kMinGrazingSine * m.norm() * d.norm()) return MeasureStatus::HorizonSingular;
+  const double l = (1.0 + m.dot(t) - m.x() * uv.x() - m.y() * uv.y()) / den;
+  if (!(1.0 + beta * l > 0.0)) return MeasureStatus::BehindCamera;
+  const Eigen::Vector3d Xc(uv.x() * (1.0 + beta * l), uv.y() * (1.0 + beta * l), l);
+  const Eigen::Vector3d X = R.transpose() * (Xc - t);
+  const double w = 1.0 + beta * X.z();
+  if (!(w > 0.0)) return MeasureStatus::BehindCamera;
+  *uv_ref = X.head<2>() / w;
+  return uv_ref->allFinite() ? MeasureStatus::Ok : MeasureStatus::NonFinite;
+}
+
+}  // namespace rsfm

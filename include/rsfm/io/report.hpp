@@ -2,6 +2,7 @@
 // Pieces shared by the experiments' reports (docs/outputs.md).
 #include <filesystem>
 #include <string>
+#include <vector>
 
 namespace rsfm::io {
 
@@ -13,6 +14,9 @@ std::string pythonInterpreter();
 /// Directory of the plot scripts: $RSFM_SCRIPTS_DIR, else the source tree's scripts/.
 std::string scriptsDirectory();
 
+/// Runs scripts/<script> ARGS... with the plotting interpreter (MPLBACKEND=Agg); throws
+/// std::runtime_error with a one-line message when it fails.
+void runScript(const std::string& script, const std::vector<std::string>& args);
 /// Runs scripts/<script> DATA PNG SVG with the plotting interpreter (MPLBACKEND=Agg); throws
 /// std::runtime_error with a one-line message when it fails.
 void runPlotScript(const std::string& script, const std::filesystem::path& data,

@@ -55,6 +55,16 @@ class PlaneModel {
                              Eigen::Vector3d* p, Eigen::Vector3d* dp_dbeta,
                              Eigen::Matrix3d* dp_dN, Eigen::Matrix<double, 3, 2>* dp_duv = nullptr);
 
+  /// Transfer of a point first seen in a later frame (DESIGN.md §3): the reference-frame image
+  /// position of the point of plane N (reference frame) seen at `uv` in the camera with motion
+  /// (R, t) (A&P eq. 6: X_C = t + R X, t = (t_X, t_Y, t_Z) in scene units) and focal beta.
+  /// The ray X_C(l) = (u (1 + beta l), v (1 + beta l), l) meets R N . (X_C - t) = 1 at
+  /// l = (1 + m.t - m_X u - m_Y v) / (beta (m_X u + m_Y v) + m_Z), m = R N; then X = R^T (X_C - t)
+  /// and uv_ref = (X, Y) / (1 + beta Z). Fails (HorizonSingular / BehindCamera) when the ray is
+  /// within kMinGrazingSine of the plane or the point is behind either camera.
+  static MeasureStatus transferToReference(const Eigen::Vector3d& N, double beta, const Eigen::Matrix3d& R,
+                                           const Eigen::Vector3d& t, const Eigen::Vector2d& uv,
+                                           Eigen::Vector2d* uv_ref);
   /// Replaces point i's reference position (reference refinement, see recursive_filter.hpp).
   void setReference(int i, const Eigen::Vector2d& uv) { ref_[i] = uv; }
 

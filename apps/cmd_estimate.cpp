@@ -1,0 +1,220 @@
+// `rsfm estimate --tracks FILE` and `rsfm run INPUT`: plane finding, the recursive filter on the
+// tracks, and the report (docs/estimate.md, docs/outputs.md).
+#include <fmt/format.h>
+
+#include <chrono>
+#include <memory>
+#include <sstream>
+
+#include "cli_common.hpp"
+#include "rsfm/io/atomic_file.hpp"
+#include "rsfm/io/estimate_report.hpp"
+#include "rsfm/io/tracks_io.hpp"
+#include "rsfm/pipeline/track_filter.hpp"
+#include "rsfm/vision/overlay.hpp"
+#include "rsfm/vision/plane_finder.hpp"
+#include "track_options.hpp"
+
+namespace rsfm::cli {
+
+namespace {
+
+struct EstimateCli {
+  std::string model = "planes";
+  TrackFilterOptions filter;
+  vision::PlaneFinderOptions finder;
+  std::string plane_rois;  ///< "x,y,...;x,y,..."
+  double q_trans = 3e-4, q_omega = 1e-4, q_beta = 0.0;
+  std::string reference = "refine";
+  double gate = 0.999;
+  int iterations = 1;
+  bool plots = true;
+  bool quiet = false;
+  std::string out = "out";
+};
+
+void addEstimateOptions(CLI::App* a, EstimateCli* e) {
+  a->add_option("--model", e->model, "point | plane (dominant plane) | planes (rigid multi-plane)")->capture_default_str();
+  a->add_option("--focal-px", e->filter.focal_px, "known focal length in px (0: estimate it)")->capture_default_str();
+  a->add_option("--focal0-px", e->filter.focal0_px, "initial focal guess in px (0: max(width, height))")
+      ->capture_default_str();
+  a->add_option("--sigma-px", e->filter.sigma_px, "tracking noise sd (px)")->capture_default_str();
+  a->add_option("--q-trans", e->q_trans, "process variance of t per frame")->capture_default_str();
+  a->add_option("--q-omega", e->q_omega, "process variance of omega per frame")->capture_default_str();
+  a->add_option("--q-beta", e->q_beta, "process variance of beta per frame")->capture_default_str();
+  a->add_option("--reference", e->reference, "reference positions: exact | inflate | refine")->capture_default_str();
+  a->add_option("--gate", e->gate, "chi-square gate probability per point (0: off)")->capture_default_str();
+  a->add_option("--iterations", e->iterations, "update iterations (1: EKF, >1: iterated EKF)")->capture_default_str();
+  a->add_option("--max-planes", e->finder.max_planes, "planes kept at most")->capture_default_str();
+  a->add_option("--min-plane-tracks", e->finder.min_plane_tracks, "reference tracks a plane needs")
+      ->capture_default_str();
+  a->add_option("--ransac-px", e->finder.ransac_px, "homography RANSAC threshold (px)")->capture_default_str();
+  a->add_option("--plane-roi", e->plane_rois,
+                "manual planes: one polygon per plane in first-frame px, x,y,x,y,...;x,y,... (skips RANSAC)");
+  a->add_flag("!--keep-static", e->finder.reject_static, "keep planes that do not move in the image");
+  a->add_flag("!--no-plots", e->plots, "skip the PNG/SVG plots");
+  a->add_option("--out", e->out, "output directory")->capture_default_str();
+  a->add_flag("--quiet", e->quiet, "no progress on stderr");
+}
+
+std::string finishEstimateOptions(EstimateCli* e) {
+  if (!parseTrackModel(e->model, &e->filter.model))
+    return "--model must be point, plane or planes, got '" + e->model + "'";
+  ReferenceModel rm;
+  if (!parseReferenceModel(e->reference, &rm)) return "--reference must be exact, inflate or refine";
+  e->filter.filter.reference = rm;
+  if (!(e->filter.focal_px >= 0) || !(e->filter.focal0_px >= 0)) return "--focal-px and --focal0-px must be >= 0";
+  if (!(e->filter.sigma_px > 0)) return "--sigma-px must be positive";
+  if (!(e->q_trans >= 0) || !(e->q_omega >= 0) || !(e->q_beta >= 0)) return "process variances must be >= 0";
+  if (!(e->gate >= 0 && e->gate < 1)) return "--gate must be in [0, 1)";
+  if (e->iterations < 1) return "--iterations must be >= 1";
+  if (e->finder.max_planes < 1) return "--max-planes must be >= 1";
+  if (e->finder.min_plane_tracks < 5) return "--min-plane-tracks must be >= 5";
+  if (!(e->finder.ransac_px > 0)) return "--ransac-px must be positive";
+  e->filter.filter.q_motion << e->q_trans, e->q_trans, e->q_trans, e->q_omega, e->q_omega, e->q_omega, e->q_beta;
+  e->filter.filter.update.gate_probability = e->gate;
+  e->filter.filter.iterations = e->iterations;
+  if (!e->plane_rois.empty()) {
+    std::stringstream ss(e->plane_rois);
+    std::string poly;
+    while (std::getline(ss, poly, ';')) {
+      std::vector<cv::Point2f> p;
+      if (auto m = parsePolygon(poly, &p); !m.empty()) return "--plane-roi: " + m;
+      e->finder.rois.push_back(p);
+    }
+  }
+  return "";
+}
+
+/// Plane finding + filter + report (+ overlay when `overlay_input` is set). Returns the exit code.
+int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::string& overlay_input,
+                      vision::FrameRange range, double t_start, bool write_tracks) {
+  vision::PlaneFinding pf;
+  try {
+    pf = vision::findPlanes(tracks, e.finder);
+  } catch (const std::exception& ex) {
+    return fail(kBadInput, ex.what());
+  }
+  const int m = pf.numPlanes();
+  if (m == 0)
+    return fail(kBadInput, fmt::format("no plane with at least {} tracks found in the reference frame (tracks: {}; "
+                                       "try --min-plane-tracks, --ransac-px or --plane-roi)",
+                                       e.finder.min_plane_tracks, tracks.frames[0].size()));
+  if (!e.quiet) {
+    fmt::print(stderr, "planes: {} accepted (pair frame {}):", m, tracks.first_frame + pf.pair_frame);
+    for (const auto& c : pf.candidates)
+      fmt::print(stderr, " [{} {} tracks, motion {:.1f} px{}]", vision::toString(c.verdict), c.members.size(),
+                 c.median_motion_px,
+                 c.same_motion_fraction >= 0 ? fmt::format(", same-motion {:.2f}", c.same_motion_fraction) : "");
+    fmt::print(stderr, "; outliers {}\n", pf.count(-1));
+  }
+  TrackFilterResult res;
+  try {
+    res = runTrackFilter(tracks, pf.labels, e.filter, e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
+  } catch (const std::invalid_argument& ex) {
+    return fail(kBadInput, ex.what());
+  } catch (const std::exception& ex) {
+    return fail(kRuntimeFailure, ex.what());
+  }
+  if (!res.ok())
+    return fail(kRuntimeFailure, "the filter stopped at " + res.stopped + " (no outputs written)");
+  io::EstimateReport rep;
+  rep.tracks = &tracks;
+  rep.labels = &pf.labels;
+  rep.result = &res;
+  rep.model = e.filter.model;
+  rep.command = invocation();
+  nlohmann::json cands = nlohmann::json::array();
+  for (const auto& c : pf.candidates)
+    cands.push_back({{"verdict", vision::toString(c.verdict)}, {"label", c.label}, {"tracks", c.members.size()},
+                     {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction}});
+  rep.extra["plane_finding"] = {{"pair_frame", tracks.first_frame + pf.pair_frame}, {"candidates", cands},
+                                {"manual", !e.finder.rois.empty()}};
+  try {
+    io::AtomicFileSet files;
+    rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count() - t_start;
+    io::writeEstimateReport(rep, e.out, &files, e.plots);
+    if (write_tracks) files.write(std::filesystem::path(e.out) / "tracks.csv", io::tracksToString(tracks));
+    if (!overlay_input.empty())
+      vision::writeOverlay(overlay_input, range, tracks, pf.labels, res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
+    files.commit();
+  } catch (const io::InputError& ex) {
+    return fail(kBadInput, ex.what());
+  } catch (const std::exception& ex) {
+    return fail(kRuntimeFailure, ex.what());
+  }
+  if (!e.quiet) {
+    const auto s = io::estimateSummary(rep);
+    fmt::print(stderr, "estimate: {} frames, focal {:.1f} +- {:.1f} px", res.frames.size(), s["focal_px"].get<double>(),
+               s["focal_sd_px"].get<double>());
+    for (const auto& a : s["angles_between_planes_deg"])
+      fmt::print(stderr, ", angle between planes {} and {}: {:.1f} deg", a["planes"][0].get<int>(), a["planes"][1].get<int>(),
+                 a["angle_deg"].get<double>());
+    fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum, planes.csv, labels.csv{}{}{}\n", e.out,
+               e.plots ? ", motion/normals/focal.png" : "", write_tracks ? ", tracks.csv" : "",
+               overlay_input.empty() ? "" : ", overlay.mp4");
+  }
+  return 0;
+}
+
+double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
+
+}  // namespace
+
+void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
+  {
+    struct Cli {
+      EstimateCli e;
+      std::string tracks;
+    };
+    auto c = std::make_shared<Cli>();
+    auto* es = app.add_subcommand("estimate", "camera motion, focal length and planes from a tracks file");
+    es->add_option("--tracks", c->tracks, "tracks file (docs/tracks.md)")->required();
+    addEstimateOptions(es, &c->e);
+    commands.push_back({es, [c]() -> int {
+      const double t0 = now();
+      if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);
+      if (auto m = io::ensureWritableDirectory(c->e.out); !m.empty()) return fail(kBadInput, m);
+      Tracks tracks;
+      try {
+        tracks = io::readTracks(c->tracks);
+      } catch (const std::exception& ex) {
+        return fail(kBadInput, ex.what());
+      }
+      return estimateAndReport(tracks, c->e, "", {}, t0, false);
+    }});
+  }
+  {
+    struct Cli {
+      EstimateCli e;
+      TrackCli t;
+      std::string input;
+      bool overlay = true;
+    };
+    auto c = std::make_shared<Cli>();
+    auto* rn = app.add_subcommand("run", "track a video, find planes, estimate and report (the whole chain)");
+    rn->add_option("input", c->input, "video file, image pattern (frames/img%04d.png) or folder of images")->required();
+    addEstimateOptions(rn, &c->e);
+    addTrackerOptions(rn, &c->t);
+    rn->add_flag("!--no-overlay", c->overlay, "skip overlay.mp4");
+    commands.push_back({rn, [c]() -> int {
+      const double t0 = now();
+      if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);
+      if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
+      if (auto m = io::ensureWritableDirectory(c->e.out); !m.empty()) return fail(kBadInput, m);
+      Tracks tracks;
+      try {
+        tracks = vision::trackInput(c->input, c->t.tracker, c->t.range,
+                                    c->e.quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames"));
+      } catch (const io::InputError& ex) {
+        return fail(kBadInput, ex.what());
+      } catch (const std::exception& ex) {
+        return fail(kRuntimeFailure, ex.what());
+      }
+      // The tracks are part of the report.
+      return estimateAndReport(tracks, c->e, c->overlay ? c->input : "", c->t.range, t0, true);
+    }});
+  }
+}
+
+}  // namespace rsfm::cli

@@ -1,0 +1,104 @@
+// `rsfm track INPUT --out DIR`: KLT tracks of a video, image pattern or folder (docs/tracks.md).
+#include <fmt/format.h>
+
+#include <cmath>
+#include <memory>
+#include <sstream>
+
+#include "cli_common.hpp"
+#include "rsfm/io/atomic_file.hpp"
+#include "rsfm/io/tracks_io.hpp"
+#include "track_options.hpp"
+
+namespace rsfm::cli {
+
+void addTrackerOptions(CLI::App* app, TrackCli* t) {
+  auto& o = t->tracker;
+  app->add_option("--first", t->range.first, "first frame (0-based)")->capture_default_str();
+  app->add_option("--last", t->range.last, "last frame (inclusive; -1: to the end)")->capture_default_str();
+  app->add_option("--roi", t->roi, "region of interest in the first frame: polygon x,y,x,y,... (px)");
+  app->add_option("--max-tracks", o.max_tracks, "tracks kept alive at most")->capture_default_str();
+  app->add_option("--quality", o.quality, "Shi-Tomasi quality level")->capture_default_str();
+  app->add_option("--min-distance", o.min_distance_px, "minimum corner distance (px)")->capture_default_str();
+  app->add_option("--window", o.window_px, "Lucas-Kanade window (px)")->capture_default_str();
+  app->add_option("--levels", o.pyramid_levels, "pyramid levels")->capture_default_str();
+  app->add_option("--fb-max", o.fb_max_px, "forward-backward error limit (px)")->capture_default_str();
+}
+
+std::string parsePolygon(const std::string& s, std::vector<cv::Point2f>* out) {
+  out->clear();
+  std::vector<double> v;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    try {
+      size_t used = 0;
+      const double d = std::stod(item, &used);
+      if (used != item.size() || !std::isfinite(d)) throw std::invalid_argument("bad");
+      v.push_back(d);
+    } catch (const std::exception&) {
+      return fmt::format("polygon '{}': '{}' is not a number", s, item);
+    }
+  }
+  if (v.size() % 2 != 0) return fmt::format("polygon '{}': odd number of coordinates", s);
+  if (v.size() < 6) return fmt::format("polygon '{}': needs at least 3 vertices (x,y,x,y,x,y)", s);
+  for (size_t i = 0; i < v.size(); i += 2) out->emplace_back(static_cast<float>(v[i]), static_cast<float>(v[i + 1]));
+  return "";
+}
+
+std::string finishTrackerOptions(TrackCli* t) {
+  const auto& o = t->tracker;
+  if (t->range.first < 0) return "--first must be >= 0";
+  if (t->range.last >= 0 && t->range.last <= t->range.first) return "--last must be after --first (or -1)";
+  if (o.max_tracks < 5) return "--max-tracks must be at least 5";
+  if (!(o.quality > 0 && o.quality < 1)) return "--quality must be in (0, 1)";
+  if (!(o.min_distance_px > 0)) return "--min-distance must be positive";
+  if (o.window_px < 5 || o.window_px % 2 == 0) return "--window must be an odd number >= 5";
+  if (o.pyramid_levels < 0 || o.pyramid_levels > 8) return "--levels must be in 0..8";
+  if (!(o.fb_max_px > 0)) return "--fb-max must be positive";
+  if (!t->roi.empty()) {
+    if (auto m = parsePolygon(t->roi, &t->tracker.roi); !m.empty()) return "--roi: " + m;
+  }
+  return "";
+}
+
+void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
+  struct Cli {
+    TrackCli t;
+    std::string input;
+    std::string out = "out";
+    bool quiet = false;
+  };
+  auto c = std::make_shared<Cli>();
+  auto* tr = app.add_subcommand("track", "KLT feature tracks of a video, image pattern or folder -> DIR/tracks.csv");
+  tr->add_option("input", c->input, "video file, image pattern (frames/img%04d.png) or folder of images")->required();
+  tr->add_option("--out", c->out, "output directory")->capture_default_str();
+  addTrackerOptions(tr, &c->t);
+  tr->add_flag("--quiet", c->quiet, "no progress on stderr");
+  commands.push_back({tr, [c]() -> int {
+    if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
+    if (auto m = io::ensureWritableDirectory(c->out); !m.empty()) return fail(kBadInput, m);
+    Tracks tracks;
+    try {
+      tracks = vision::trackInput(c->input, c->t.tracker, c->t.range,
+                                  c->quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames"));
+    } catch (const io::InputError& e) {
+      return fail(kBadInput, e.what());
+    } catch (const std::exception& e) {
+      return fail(kRuntimeFailure, e.what());
+    }
+    try {
+      io::AtomicFileSet files;
+      files.write(std::filesystem::path(c->out) / "tracks.csv", io::tracksToString(tracks));
+      files.commit();
+    } catch (const std::exception& e) {
+      return fail(kRuntimeFailure, e.what());
+    }
+    const auto spans = trackSpans(tracks);
+    if (!c->quiet)
+      fmt::print(stderr, "track: {} frames, {} tracks; wrote {}/tracks.csv\n", tracks.numFrames(), spans.size(), c->out);
+    return 0;
+  }});
+}
+
+}  // namespace rsfm::cli

@@ -1,0 +1,38 @@
+#pragma once
+// Outputs of `rsfm estimate` / `rsfm run` (docs/outputs.md, "rsfm estimate"): trajectory.tum,
+// planes.csv, summary.json, labels.csv and the plots motion/normals/focal (.png, .svg).
+#include <nlohmann/json.hpp>
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "rsfm/io/atomic_file.hpp"
+#include "rsfm/pipeline/track_filter.hpp"
+#include "rsfm/track/tracks.hpp"
+
+namespace rsfm::io {
+
+struct EstimateReport {
+  const Tracks* tracks = nullptr;
+  const std::vector<int>* labels = nullptr;  ///< per track id: plane, -1 outlier, -2 unused
+  const TrackFilterResult* result = nullptr;
+  TrackModel model = TrackModel::Planes;
+  std::string command;
+  double seconds = 0.0;
+  nlohmann::json extra = nlohmann::json::object();  ///< merged into summary.json (e.g. plane finding)
+};
+
+/// Camera pose of one frame in the reference camera frame (TUM convention: position of the
+/// centre, Hamilton rotation camera -> reference).
+void poseOf(const TrackFrame& f, Eigen::Vector3d* position, Eigen::Quaterniond* q);
+
+/// The summary as JSON (also what summary.json holds).
+nlohmann::json estimateSummary(const EstimateReport& r);
+
+/// Writes every file into `files` (temporaries under `dir`; the caller commits). Throws
+/// std::runtime_error with a one-line message (e.g. the plot failed).
+void writeEstimateReport(const EstimateReport& r, const std::filesystem::path& dir, AtomicFileSet* files,
+                         bool plots = true);
+
+}  // namespace rsfm::io

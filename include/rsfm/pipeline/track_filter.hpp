@@ -1,0 +1,97 @@
+#pragma once
+// Running the recursive filters on real feature tracks (docs/estimate.md). No I/O, no OpenCV.
+//
+// Pixels -> A&P normalized coordinates: u = (x - c_x) / s, v = (y - c_y) / s (DESIGN.md §1), with
+// s = TrackFilterOptions::scale_px (default max(width, height) / 2), so f_px = s / beta.
+// The reference frame is the first frame of the tracks. Tracks labelled l >= 0 are points of
+// plane l; -1 (outliers) and -2 (unused) never enter the filter. Tracks that end stop
+// contributing; tracks that start later join the plane models with a reference position
+// transferred through the current plane and motion estimate (PlaneModel::transferToReference);
+// each point's innovation is chi-square gated (FilterOptions::update.gate_probability).
+// Scale gauge: N_Z of plane 0 is fixed at its initial value 1 (the main plane meets the optical
+// axis one unit in front of the image plane), so translations are in units of that distance.
+#include <Eigen/Core>
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "rsfm/recursive_filter.hpp"
+#include "rsfm/track/tracks.hpp"
+
+namespace rsfm {
+
+enum class TrackModel { Point, Plane, Planes };
+const char* toString(TrackModel m);
+bool parseTrackModel(const std::string& s, TrackModel* m);
+
+struct TrackFilterOptions {
+  TrackModel model = TrackModel::Planes;
+  double scale_px = 0.0;     ///< s, pixels per normalized unit (<= 0: max(width, height) / 2)
+  double focal_px = 0.0;     ///< known focal length (px): beta fixed at s / focal_px (<= 0: estimated)
+  double focal0_px = 0.0;    ///< initial focal guess (px) (<= 0: max(width, height), ~53 deg across)
+  double beta_sd0 = 0.3;     ///< initial standard deviation of beta, relative to beta0
+  double sigma_px = 1.0;     ///< tracking noise standard deviation (px)
+  double normal_sd0 = 1.0;   ///< initial sd of N_X, N_Y (and of N_Z of planes > 0), N_Z0 = 1
+  double depth_sd0 = 1.0;    ///< point model: initial sd of each depth alpha (alpha0 = 1)
+  int max_point_tracks = 60; ///< point model: reference tracks used at most (O(N^3) per frame)
+  bool add_new_tracks = true;  ///< plane models: later tracks join by transfer
+  int min_track_frames = 3;  ///< tracks seen in fewer frames are left out
+  /// Filter tuning; defaults differ from the synthetic experiments' in `reference` (Refine:
+  /// real first-frame positions are noisy) and in Q (real hand-held motion).
+  FilterOptions filter = defaultFilter();
+  static FilterOptions defaultFilter();
+};
+
+/// State after one frame.
+struct TrackFrame {
+  int frame = 0;                                   ///< absolute frame number
+  Eigen::Matrix3d R = Eigen::Matrix3d::Identity();  ///< reference -> camera k (A&P)
+  Eigen::Vector3d t = Eigen::Vector3d::Zero();      ///< (t_X, t_Y, t_Z), scene units (A&P)
+  double beta = 0.0, var_beta = 0.0;
+  std::vector<Eigen::Vector3d> N;                  ///< plane models: N per plane (reference frame)
+  std::vector<Eigen::Matrix3d> cov_N;
+  std::vector<Eigen::Vector3d> cov_beta_N;  ///< cov(beta, N) per plane
+  int observed = 0;   ///< observations offered
+  int used = 0;       ///< accepted by the gate
+  int gated = 0;      ///< rejected by the gate
+  double nis_per_dof = 0.0;
+  double rms_px = 0.0;  ///< posterior reprojection RMS of the accepted observations (px)
+  std::uint32_t health = kHealthy;
+};
+
+struct TrackFilterResult {
+  std::vector<TrackFrame> frames;   ///< frames[0] is the reference frame (prior)
+  double scale_px = 0.0;
+  int planes = 0;
+  std::vector<int> plane_tracks;     ///< tracks that entered the filter, per plane (point: one entry)
+  std::vector<int> plane_new_tracks; ///< of which joined after the reference frame
+  std::vector<double> plane_rms_px;  ///< posterior reprojection RMS per plane over all frames (px)
+  std::vector<int> transfer_failed;  ///< later tracks whose transfer failed, per plane
+  std::string stopped;               ///< empty when every frame was processed, else why not
+  bool ok() const { return stopped.empty(); }
+};
+
+/// Runs the chosen filter. Throws std::invalid_argument for options out of range or when fewer
+/// than the model's minimum points (point 7, plane 5 per plane) are labelled in the reference frame.
+TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterOptions& options,
+                                 const std::function<void(int, int)>& progress = {});
+
+}  // namespace rsfm
+
+namespace rsfm {
+
+/// Plane N . X = 1 (A&P reference frame, origin on the image plane) in the reference camera's
+/// COP-centred frame (Y = X + e_z / beta): n . Y = d with n = +-N/|N| chosen so that d > 0 (n
+/// points from the camera towards the plane), d = (1 + N_Z / beta) / |N|.
+struct MetricPlane {
+  Eigen::Vector3d n = Eigen::Vector3d::UnitZ();
+  double d = 0.0;
+  double sd_angle_deg = 0.0;  ///< sqrt of the trace of cov(n) (first order), degrees
+  double sd_d = 0.0;          ///< first-order standard deviation of d
+};
+/// `cov` is the 4x4 covariance of (beta, N_X, N_Y, N_Z) (zero: no uncertainty).
+MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matrix4d& cov = Eigen::Matrix4d::Zero());
+
+}  // namespace rsfm

@@ -1,0 +1,48 @@
+#pragma once
+// Feature tracks in pixels: what the tracker produces and the estimators consume (docs/tracks.md).
+// Pixel convention: x right, y down, (0, 0) the centre of the top-left pixel (OpenCV's).
+// No I/O here: the file format lives in rsfm/io/tracks_io.hpp.
+#include <Eigen/Core>
+
+#include <string>
+#include <vector>
+
+namespace rsfm {
+
+/// Image size and principal point (pixels).
+struct ImageInfo {
+  int width = 0;
+  int height = 0;
+  double cx = 0.0;  ///< principal point x (default: (width - 1) / 2)
+  double cy = 0.0;  ///< principal point y (default: (height - 1) / 2)
+};
+
+/// One tracked feature in one frame.
+struct TrackPoint {
+  int id = 0;                                    ///< track id, >= 0, unique within a frame
+  Eigen::Vector2d px = Eigen::Vector2d::Zero();  ///< position in pixels
+};
+
+/// Tracks of one sequence. frames[k] holds the points seen in frame first_frame + k, sorted by id.
+struct Tracks {
+  ImageInfo image;
+  int first_frame = 0;
+  std::vector<std::vector<TrackPoint>> frames;
+  std::string source;  ///< what was tracked (informative)
+
+  int numFrames() const { return static_cast<int>(frames.size()); }
+  /// 1 + the largest track id (0 when empty).
+  int idBound() const;
+  /// Position of track `id` in frame index k (0-based within `frames`), or nullptr.
+  const TrackPoint* find(int k, int id) const;
+};
+
+/// Per-track summary: first and last frame index (0-based within Tracks::frames), length.
+struct TrackSpan {
+  int first = -1;
+  int last = -1;
+  int length() const { return first < 0 ? 0 : last - first + 1; }
+};
+std::vector<TrackSpan> trackSpans(const Tracks& t);
+
+}  // namespace rsfm

@@ -1,0 +1,43 @@
+#pragma once
+// Frames from a video file, an image-sequence pattern (printf style, e.g. frames/img%04d.png) or
+// a folder of images (sorted by file name). Errors are InputError naming the file (and frame).
+#include <opencv2/core.hpp>
+#include <opencv2/videoio.hpp>
+
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace rsfm::vision {
+
+class FrameSource {
+ public:
+  /// Opens `input`; throws io::InputError when it is missing, unreadable or not a video/images.
+  explicit FrameSource(const std::string& input);
+  ~FrameSource();
+  FrameSource(FrameSource&&) noexcept;
+  FrameSource& operator=(FrameSource&&) noexcept;
+
+  /// Reads the next frame (BGR or gray as stored) into `img`; returns false at the end.
+  /// Throws io::InputError on a frame that cannot be decoded or whose size differs from the first.
+  bool read(cv::Mat* img);
+  /// Index of the frame last returned by read() (0-based).
+  int index() const { return index_; }
+  /// Number of frames if known (video container's count or number of images), else -1.
+  int countHint() const { return count_; }
+  double fps() const { return fps_; }
+  const std::string& description() const { return input_; }
+
+ private:
+  enum class Kind { Video, Pattern, Folder } kind_ = Kind::Video;
+  std::string input_;
+  std::unique_ptr<cv::VideoCapture> cap_;
+  std::vector<std::filesystem::path> files_;  // Folder and Pattern
+  int index_ = -1;
+  int count_ = -1;
+  double fps_ = 30.0;
+  cv::Size size_;
+};
+
+}  // namespace rsfm::vision

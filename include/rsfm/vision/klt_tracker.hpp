@@ -1,0 +1,69 @@
+#pragma once
+// KLT tracking (docs/tracks.md): Shi-Tomasi corners refined to sub-pixel accuracy, pyramidal
+// Lucas-Kanade frame to frame with a forward-backward check, re-detection to keep enough tracks,
+// an optional region of interest in the first frame.
+#include <opencv2/core.hpp>
+
+#include <vector>
+
+#include "rsfm/track/tracks.hpp"
+
+namespace rsfm::vision {
+
+struct TrackerOptions {
+  int max_tracks = 400;             ///< corners kept alive at most
+  double quality = 0.01;            ///< Shi-Tomasi quality level (fraction of the best corner)
+  double min_distance_px = 8.0;     ///< minimum distance between corners (px)
+  int block_size = 7;               ///< Shi-Tomasi block (px)
+  int window_px = 21;               ///< Lucas-Kanade window side (px)
+  int pyramid_levels = 3;           ///< pyramid levels above the image
+  double fb_max_px = 0.5;           ///< forward-backward error above which a track ends (px)
+  double min_eig = 1e-4;            ///< LK minimum eigenvalue threshold (cv::OPTFLOW_LK_GET_MIN_EIGENVALS)
+  double redetect_below = 0.7;      ///< re-detect when fewer than this fraction of max_tracks live
+  int border_px = 10;               ///< tracks closer than this to the border end
+  /// Region of interest: polygon in the first frame's pixels (empty: the whole image). Later
+  /// re-detections stay inside the convex hull of the live tracks that started in it.
+  std::vector<cv::Point2f> roi;
+};
+
+class KltTracker {
+ public:
+  explicit KltTracker(TrackerOptions o = {}) : o_(std::move(o)) {}
+  /// Adds the next frame (8-bit gray or BGR).
+  void process(const cv::Mat& frame);
+  /// Tracks so far; image.cx, cy = image centre; first_frame = `first_frame`.
+  Tracks tracks(int first_frame = 0) const;
+  /// Live tracks in the last frame (id, position).
+  const std::vector<TrackPoint>& live() const { return cur_; }
+
+ private:
+  void detect(const cv::Mat& gray, bool first);
+  TrackerOptions o_;
+  std::vector<cv::Mat> prev_pyr_;
+  cv::Mat prev_gray_;
+  std::vector<TrackPoint> cur_;
+  std::vector<std::vector<TrackPoint>> frames_;
+  int next_id_ = 0;
+  cv::Size size_;
+};
+
+}  // namespace rsfm::vision
+
+#include <functional>
+#include <string>
+
+namespace rsfm::vision {
+
+/// Frame range of a run: frames first..last of the input (0-based, inclusive; last < 0: to the end).
+struct FrameRange {
+  int first = 0;
+  int last = -1;
+};
+
+/// Tracks `input` (video, pattern or folder) over `range`. `progress(done, total)` is called per
+/// frame (total = -1 when unknown). Throws io::InputError on bad input (including a range that
+/// starts after the end, or fewer than 2 frames).
+Tracks trackInput(const std::string& input, const TrackerOptions& options, FrameRange range = {},
+                  const std::function<void(int, int)>& progress = {});
+
+}  // namespace rsfm::vision

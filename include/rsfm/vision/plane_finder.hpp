@@ -1,0 +1,61 @@
+#pragma once
+// Assigning tracks to planes (docs/planes_finding.md): RANSAC homographies from the reference
+// frame (the first frame of the tracks) to a later frame over the tracks alive in both, the
+// dominant plane first, then further planes from the remaining tracks; each plane is checked on
+// every frame; planes that do not move (static background) or move with another rigid motion than
+// the main plane are rejected, and their tracks, like tracks that fit no plane, are outliers.
+// Tracks born after the reference frame join the plane whose homographies carry them.
+#include <opencv2/core.hpp>
+
+#include <string>
+#include <vector>
+
+#include "rsfm/track/tracks.hpp"
+
+namespace rsfm::vision {
+
+struct PlaneFinderOptions {
+  int max_planes = 3;                ///< planes kept at most
+  int min_plane_tracks = 12;         ///< a plane needs at least this many reference tracks
+  double ransac_px = 2.0;            ///< homography inlier threshold at the pair frame (px)
+  double verify_px = 3.0;            ///< a member may stray at most this far from its plane's
+                                     ///< least-squares homography in any frame (px)
+  double min_alive_fraction = 0.5;   ///< the pair frame: last frame with this fraction alive
+  double static_px = 2.0;            ///< planes whose members move less than this (median, px) are static
+  double motion_px = 2.0;            ///< plane+parallax epipolar distance limit for "same motion" (px)
+  double same_motion_fraction = 0.6; ///< fraction of a plane's parallax tracks that must agree
+  int min_new_track_frames = 5;      ///< later tracks shorter than this are left out
+  bool reject_static = true;         ///< reject planes that do not move in the image
+  /// Manual override: one polygon per plane in reference-frame pixels. Reference tracks inside
+  /// polygon j belong to plane j (first polygon wins); no RANSAC search, no motion test.
+  std::vector<std::vector<cv::Point2f>> rois;
+  unsigned seed = 1;                 ///< RANSAC seed (cv::theRNG)
+};
+
+/// Why a candidate plane was kept or not.
+enum class PlaneVerdict { Accepted, Static, OtherMotion, TooFew };
+const char* toString(PlaneVerdict v);
+
+struct FoundPlane {
+  PlaneVerdict verdict = PlaneVerdict::Accepted;
+  int label = -1;                     ///< index among accepted planes (-1 if rejected)
+  std::vector<int> members;           ///< track ids (reference and later tracks)
+  std::vector<cv::Matx33d> H;         ///< reference -> frame k homography (k = 0..F-1; empty if unknown)
+  double median_motion_px = 0.0;      ///< largest median member displacement from the reference
+  double same_motion_fraction = -1;   ///< plane+parallax agreement with the main plane (-1: main/untested)
+};
+
+struct PlaneFinding {
+  /// Label per track id: plane 0..m-1 (accepted planes, largest first), -1 outlier (fits no
+  /// accepted plane or belongs to a rejected one), -2 not used (too short to judge).
+  std::vector<int> labels;
+  std::vector<FoundPlane> candidates;  ///< every candidate plane, accepted and rejected
+  int pair_frame = -1;                 ///< frame index of the RANSAC pair (reference, pair_frame)
+  int numPlanes() const;
+  int count(int label) const;
+};
+
+/// Finds planes in `tracks`. Throws std::invalid_argument on options out of range.
+PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& options = {});
+
+}  // namespace rsfm::vision

@@ -1,0 +1,122 @@
+#!/usr/bin/python3
+"""Plots of `rsfm estimate` / `rsfm run` against frame.
+
+Usage: plot_estimate.py TRAJECTORY.tum PLANES.csv MOTION.png MOTION.svg NORMALS.png NORMALS.svg FOCAL.png FOCAL.svg
+- motion: camera position (tx, ty, tz, reference-camera frame, scene units) and rotation angle
+  from the reference frame (deg);
+- normals: each plane's unit normal as azimuth/elevation angles (deg) with its 1-sigma band;
+- focal: focal length (px) with its 1-sigma band.
+Run with /usr/bin/python3 (Debian's matplotlib) and MPLBACKEND=Agg.
+"""
+import csv
+import math
+import sys
+from collections import defaultdict
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+
+def read_tum(path):
+    rows = []
+    with open(path) as f:
+        for line in f:
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            rows.append([float(v) for v in line.split()])
+    return rows
+
+
+def fnum(s):
+    return float("nan") if s in ("NA", "") else float(s)
+
+
+def main():
+    if len(sys.argv) != 9:
+        sys.exit("usage: plot_estimate.py TRAJECTORY.tum PLANES.csv MOTION.png MOTION.svg NORMALS.png NORMALS.svg FOCAL.png FOCAL.svg")
+    traj = read_tum(sys.argv[1])
+    if not traj:
+        sys.exit("plot_estimate.py: no poses in " + sys.argv[1])
+    planes = defaultdict(lambda: defaultdict(list))
+    focal = {}
+    with open(sys.argv[2], newline="") as f:
+        for row in csv.DictReader(f):
+            fr = int(row["frame"])
+            focal[fr] = (fnum(row["focal_px"]), fnum(row["focal_sd_px"]))
+            p = int(row["plane"])
+            if p < 0:
+                continue
+            d = planes[p]
+            d["frame"].append(fr)
+            nx, ny, nz = fnum(row["nx"]), fnum(row["ny"]), fnum(row["nz"])
+            d["az"].append(math.degrees(math.atan2(nx, nz)))
+            d["el"].append(math.degrees(math.asin(max(-1.0, min(1.0, -ny)))))
+            d["sd"].append(fnum(row["normal_sd_deg"]))
+
+    # Motion.
+    t = [r[0] for r in traj]
+    fig, ax = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    for i, name in enumerate(("tx", "ty", "tz")):
+        ax[0].plot(t, [r[1 + i] for r in traj], lw=1.4, label=name)
+    ax[0].set_ylabel("camera position (scene units)")
+    ax[0].legend(fontsize=8)
+    ang = [math.degrees(2.0 * math.acos(min(1.0, abs(r[7])))) for r in traj]
+    ax[1].plot(t, ang, color="tab:purple", lw=1.4)
+    ax[1].set_ylabel("rotation from reference (deg)")
+    ax[1].set_xlabel("frame")
+    for a in ax:
+        a.grid(alpha=0.3)
+    fig.suptitle("Camera motion (reference camera frame)", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(sys.argv[3], dpi=110)
+    fig.savefig(sys.argv[4])
+    plt.close(fig)
+
+    # Normals.
+    fig, ax = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for p, d in sorted(planes.items()):
+        c = colours[p % len(colours)]
+        for r, key in enumerate(("az", "el")):
+            lo = [v - s for v, s in zip(d[key], d["sd"])]
+            hi = [v + s for v, s in zip(d[key], d["sd"])]
+            ax[r].plot(d["frame"], d[key], color=c, lw=1.4, label=f"plane {p}")
+            ax[r].fill_between(d["frame"], lo, hi, color=c, alpha=0.2, lw=0)
+    ax[0].set_ylabel("normal azimuth atan2(nx, nz) (deg)")
+    ax[1].set_ylabel("normal elevation asin(-ny) (deg)")
+    ax[1].set_xlabel("frame")
+    for a in ax:
+        a.grid(alpha=0.3)
+    if planes:
+        ax[0].legend(fontsize=8)
+    else:
+        ax[0].text(0.5, 0.5, "point model: no planes", ha="center", transform=ax[0].transAxes)
+    fig.suptitle("Plane normals (reference camera frame, 1-sigma bands)", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(sys.argv[5], dpi=110)
+    fig.savefig(sys.argv[6])
+    plt.close(fig)
+
+    # Focal length.
+    fr = sorted(focal)
+    fv = [focal[k][0] for k in fr]
+    fs = [focal[k][1] for k in fr]
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.plot(fr, fv, color="tab:red", lw=1.4)
+    ax.fill_between(fr, [v - s for v, s in zip(fv, fs)], [v + s for v, s in zip(fv, fs)], color="tab:red",
+                    alpha=0.2, lw=0)
+    ax.set_xlabel("frame")
+    ax.set_ylabel("focal length (px)")
+    ax.grid(alpha=0.3)
+    ax.set_title("Focal length estimate (1-sigma band)", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(sys.argv[7], dpi=110)
+    fig.savefig(sys.argv[8])
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()

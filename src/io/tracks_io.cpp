@@ -1,0 +1,160 @@
+#include "rsfm/io/tracks_io.hpp"
+
+#include <fmt/format.h>
+
+#include <charconv>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+#include <vector>
+
+namespace rsfm::io {
+
+void writeTracks(std::ostream& os, const Tracks& t) {
+  os << "# rsfm-tracks 1\n";
+  os << fmt::format("# image_size {} {}\n", t.image.width, t.image.height);
+  os << fmt::format("# principal_point {} {}\n", t.image.cx, t.image.cy);
+  os << fmt::format("# frames {} {}\n", t.first_frame, t.first_frame + t.numFrames() - 1);
+  std::string src = t.source;
+  for (char& c : src)
+    if (c == '\n' || c == '\r') c = ' ';
+  if (!src.empty()) os << "# source " << src << "\n";
+  os << "frame,track,x,y\n";
+  std::string buf;
+  for (int k = 0; k < t.numFrames(); ++k)
+    for (const auto& p : t.frames[k]) {
+      buf.clear();
+      fmt::format_to(std::back_inserter(buf), "{},{},{:.4f},{:.4f}\n", t.first_frame + k, p.id, p.px.x(), p.px.y());
+      os << buf;
+    }
+}
+
+std::string tracksToString(const Tracks& t) {
+  std::ostringstream os;
+  writeTracks(os, t);
+  return os.str();
+}
+
+namespace {
+
+bool parseInt(std::string_view s, long long* v) {
+  while (!s.empty() && s.front() == ' ') s.remove_prefix(1);
+  while (!s.empty() && (s.back() == ' ' || s.back() == '\r')) s.remove_suffix(1);
+  if (s.empty()) return false;
+  auto r = std::from_chars(s.data(), s.data() + s.size(), *v);
+  return r.ec == std::errc() && r.ptr == s.data() + s.size();
+}
+
+bool parseDouble(std::string_view s, double* v) {
+  while (!s.empty() && s.front() == ' ') s.remove_prefix(1);
+  while (!s.empty() && (s.back() == ' ' || s.back() == '\r')) s.remove_suffix(1);
+  if (s.empty()) return false;
+  auto r = std::from_chars(s.data(), s.data() + s.size(), *v);
+  return r.ec == std::errc() && r.ptr == s.data() + s.size();
+}
+
+std::vector<std::string_view> split(std::string_view s, char sep) {
+  std::vector<std::string_view> out;
+  size_t b = 0;
+  for (size_t i = 0; i <= s.size(); ++i)
+    if (i == s.size() || s[i] == sep) {
+      out.push_back(s.substr(b, i - b));
+      b = i + 1;
+    }
+  return out;
+}
+
+}  // namespace
+
+Tracks readTracks(const std::filesystem::path& file) {
+  std::error_code ec;
+  if (!std::filesystem::exists(file, ec)) throw inputError(file, 0, "no such file");
+  if (std::filesystem::is_directory(file, ec)) throw inputError(file, 0, "is a directory, not a tracks file");
+  std::ifstream in(file);
+  if (!in) throw inputError(file, 0, "cannot be opened");
+  Tracks t;
+  std::string line;
+  int ln = 0;
+  bool version = false, size = false, pp = false, frames = false, columns = false;
+  long long last_frame = 0;
+  long long cur_frame = -1, cur_id = -1;
+  size_t rows = 0;
+  while (std::getline(in, line)) {
+    ++ln;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty()) continue;
+    if (!columns) {
+      if (line[0] == '#') {
+        std::istringstream ss(line.substr(1));
+        std::string key;
+        ss >> key;
+        if (key.empty()) continue;
+        if (!version) {
+          int v = 0;
+          if (key != "rsfm-tracks" || !(ss >> v))
+            throw inputError(file, ln, "not an rsfm tracks file (first line must be '# rsfm-tracks 1')");
+          if (v != 1) throw inputError(file, ln, fmt::format("unsupported tracks format version {} (this rsfm reads 1)", v));
+          version = true;
+          continue;
+        }
+        if (key == "image_size") {
+          if (!(ss >> t.image.width >> t.image.height) || t.image.width <= 0 || t.image.height <= 0)
+            throw inputError(file, ln, "image_size needs two positive integers (width height)");
+          size = true;
+        } else if (key == "principal_point") {
+          if (!(ss >> t.image.cx >> t.image.cy) || !std::isfinite(t.image.cx) || !std::isfinite(t.image.cy))
+            throw inputError(file, ln, "principal_point needs two finite numbers (cx cy)");
+          pp = true;
+        } else if (key == "frames") {
+          long long a = 0, b = 0;
+          if (!(ss >> a >> b) || a < 0 || b < a) throw inputError(file, ln, "frames needs first <= last, both >= 0");
+          t.first_frame = static_cast<int>(a);
+          last_frame = b;
+          t.frames.resize(static_cast<size_t>(b - a + 1));
+          frames = true;
+        } else if (key == "source") {
+          std::getline(ss >> std::ws, t.source);
+        }  // other '#' lines are comments
+        continue;
+      }
+      if (!version) throw inputError(file, ln, "not an rsfm tracks file (first line must be '# rsfm-tracks 1')");
+      if (!size) throw inputError(file, ln, "missing '# image_size W H' header line");
+      if (!frames) throw inputError(file, ln, "missing '# frames FIRST LAST' header line");
+      if (!pp) {
+        t.image.cx = (t.image.width - 1) / 2.0;
+        t.image.cy = (t.image.height - 1) / 2.0;
+      }
+      if (line != "frame,track,x,y")
+        throw inputError(file, ln, "expected the column header 'frame,track,x,y', got '" + line + "'");
+      columns = true;
+      continue;
+    }
+    const auto f = split(line, ',');
+    if (f.size() != 4) throw inputError(file, ln, fmt::format("expected 4 fields (frame,track,x,y), got {}", f.size()));
+    long long fr = 0, id = 0;
+    double x = 0, y = 0;
+    if (!parseInt(f[0], &fr)) throw inputError(file, ln, "frame is not an integer");
+    if (!parseInt(f[1], &id)) throw inputError(file, ln, "track id is not an integer");
+    if (!parseDouble(f[2], &x) || !parseDouble(f[3], &y)) throw inputError(file, ln, "x or y is not a number");
+    if (!std::isfinite(x) || !std::isfinite(y)) throw inputError(file, ln, "x or y is not finite");
+    if (fr < t.first_frame || fr > last_frame)
+      throw inputError(file, ln, fmt::format("frame {} outside the declared range {}..{}", fr, t.first_frame, last_frame));
+    if (id < 0 || id > 100000000) throw inputError(file, ln, fmt::format("track id {} out of range", id));
+    if (fr < cur_frame) throw inputError(file, ln, fmt::format("frame {} after frame {}: rows must be in frame order", fr, cur_frame));
+    if (fr == cur_frame && id <= cur_id)
+      throw inputError(file, ln, fmt::format("track {} repeated or out of order in frame {}", id, fr));
+    if (x < -t.image.width || x > 2.0 * t.image.width || y < -t.image.height || y > 2.0 * t.image.height)
+      throw inputError(file, ln, fmt::format("position ({}, {}) far outside the {}x{} image", x, y, t.image.width, t.image.height));
+    cur_frame = fr;
+    cur_id = id;
+    t.frames[static_cast<size_t>(fr - t.first_frame)].push_back({static_cast<int>(id), Eigen::Vector2d(x, y)});
+    ++rows;
+  }
+  if (in.bad()) throw inputError(file, ln, "read error");
+  if (!version) throw inputError(file, 0, "empty file (not an rsfm tracks file)");
+  if (!columns) throw inputError(file, ln, "no column header 'frame,track,x,y'");
+  if (rows == 0) throw inputError(file, ln, "no track rows");
+  return t;
+}
+
+}  // namespace rsfm::io

@@ -1,0 +1,299 @@
+#include "rsfm/pipeline/track_filter.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include "rsfm/models/plane_model.hpp"
+#include "rsfm/models/point_model.hpp"
+
+namespace rsfm {
+
+const char* toString(TrackModel m) {
+  return m == TrackModel::Point ? "point" : m == TrackModel::Plane ? "plane" : "planes";
+}
+
+bool parseTrackModel(const std::string& s, TrackModel* m) {
+  if (s == "point") *m = TrackModel::Point;
+  else if (s == "plane") *m = TrackModel::Plane;
+  else if (s == "planes") *m = TrackModel::Planes;
+  else return false;
+  return true;
+}
+
+FilterOptions TrackFilterOptions::defaultFilter() {
+  FilterOptions f;
+  f.reference = ReferenceModel::Refine;
+  return f;
+}
+
+namespace {
+
+/// Posterior residuals of the accepted observations, accumulated per group (plane, or 0).
+template <class Model>
+void accumulateResiduals(const RecursiveFilter<Model>& f, const std::vector<Observation>& obs, const FrameStats& fs,
+                         const std::vector<int>& group_of_obs, double s, std::vector<double>* sum2,
+                         std::vector<long>* count, double* frame_rms) {
+  std::vector<Observation> acc;
+  std::vector<int> grp;
+  for (size_t b = 0; b < fs.used.size(); ++b) {
+    if (b < fs.update.gated_mask.size() && fs.update.gated_mask[b]) continue;
+    acc.push_back(obs[fs.used[b]]);
+    grp.push_back(group_of_obs[fs.used[b]]);
+  }
+  MeasurementBatch batch;
+  std::vector<int> used;
+  int invalid = 0;
+  MeasureStatus problem = MeasureStatus::Ok;
+  f.model().linearize(f.ekf().x(), f.rotation(), acc, 1.0, nullptr, &batch, &invalid, &problem, &used);
+  double fs2 = 0.0;
+  for (size_t b = 0; b < used.size(); ++b) {
+    const double r2 = batch.residual.template segment<2>(2 * b).squaredNorm() * s * s;
+    (*sum2)[grp[used[b]]] += r2;
+    (*count)[grp[used[b]]] += 2;
+    fs2 += r2;
+  }
+  *frame_rms = used.empty() ? 0.0 : std::sqrt(fs2 / (2.0 * used.size()));
+}
+
+std::string stopReason(int frame, const FrameStats& fs, int min_points) {
+  if (fs.health & kInvalidRotation) return "frame " + std::to_string(frame) + ": the rotation update left dq's domain (|omega| >= 2)";
+  if (!fs.update.applied && fs.health == kHealthy && (fs.update.health & kTooFewMeasurements))
+    return "frame " + std::to_string(frame) + ": only " + std::to_string(fs.update.used) +
+           " observations accepted, the model needs " + std::to_string(min_points);
+  const std::uint32_t h = fs.health != kHealthy ? fs.health : fs.update.health;
+  return "frame " + std::to_string(frame) + ": " + describeHealth(h);
+}
+
+}  // namespace
+
+TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterOptions& o,
+                                 const std::function<void(int, int)>& progress) {
+  const int F = tracks.numFrames();
+  if (F < 2) throw std::invalid_argument("tracks: need at least 2 frames");
+  if (tracks.image.width <= 0 || tracks.image.height <= 0) throw std::invalid_argument("tracks: no image size");
+  if (static_cast<int>(labels.size()) < tracks.idBound())
+    throw std::invalid_argument("labels: fewer labels than tracks");
+  if (!(o.sigma_px > 0) || !(o.beta_sd0 >= 0) || !(o.normal_sd0 > 0) || !std::isfinite(o.focal_px))
+    throw std::invalid_argument("estimate: options out of range (sigma, beta sd, normal sd, focal)");
+  TrackFilterResult res;
+  const double s = o.scale_px > 0 ? o.scale_px : std::max(tracks.image.width, tracks.image.height) / 2.0;
+  res.scale_px = s;
+  const double cx = tracks.image.cx, cy = tracks.image.cy;
+  auto uvOf = [&](const Eigen::Vector2d& px) { return Eigen::Vector2d((px.x() - cx) / s, (px.y() - cy) / s); };
+  const auto spans = trackSpans(tracks);
+  const bool known_focal = o.focal_px > 0;
+  const double f0 = known_focal ? o.focal_px : (o.focal0_px > 0 ? o.focal0_px : std::max(tracks.image.width, tracks.image.height));
+  const double beta0 = s / f0;
+  FilterOptions fo = o.filter;
+  fo.sigma_uv = o.sigma_px / s;
+
+  auto usable = [&](int id, int plane_limit) {
+    const int l = labels[id];
+    return l >= 0 && l < plane_limit && spans[id].length() >= o.min_track_frames;
+  };
+
+  if (o.model == TrackModel::Point) {
+    std::vector<int> ids;
+    for (const auto& p : tracks.frames[0])
+      if (usable(p.id, 1 << 30)) ids.push_back(p.id);
+    if (static_cast<int>(ids.size()) < PointModel::kMinPoints)
+      throw std::invalid_argument("point model: " + std::to_string(ids.size()) +
+                                  " usable tracks in the reference frame, needs at least 7");
+    // Longest-lived tracks first, at most max_point_tracks (the point filter is O(N^3)).
+    std::stable_sort(ids.begin(), ids.end(), [&](int a, int b) { return spans[a].length() > spans[b].length(); });
+    if (o.max_point_tracks > 0 && static_cast<int>(ids.size()) > o.max_point_tracks) ids.resize(o.max_point_tracks);
+    std::sort(ids.begin(), ids.end());
+    const int n = 7 + static_cast<int>(ids.size());
+    std::vector<Eigen::Vector2d> ref;
+    for (int id : ids) ref.push_back(uvOf(tracks.find(0, id)->px));
+    Eigen::VectorXd x0 = Eigen::VectorXd::Zero(n);
+    Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(n, n);
+    std::vector<bool> fixed(n, false);
+    x0[idx::kBeta] = beta0;
+    P0(idx::kBeta, idx::kBeta) = known_focal ? 0.0 : std::pow(o.beta_sd0 * beta0, 2);
+    fixed[idx::kBeta] = known_focal;
+    for (int i = 7; i < n; ++i) {
+      x0[i] = 1.0;
+      P0(i, i) = o.depth_sd0 * o.depth_sd0;
+    }
+    P0(7, 7) = 0.0;
+    fixed[7] = true;  // scale gauge: the first point's depth
+    RecursiveFilter<PointModel> f(PointModel(ref), Ekf(x0, P0, fixed), fo);
+    std::vector<int> pidx(tracks.idBound(), -1);
+    for (size_t i = 0; i < ids.size(); ++i) pidx[ids[i]] = static_cast<int>(i);
+    res.planes = 0;
+    res.plane_tracks = {static_cast<int>(ids.size())};
+    res.plane_new_tracks = {0};
+    res.transfer_failed = {0};
+    std::vector<double> sum2(1, 0.0);
+    std::vector<long> cnt(1, 0);
+    TrackFrame t0;
+    t0.frame = tracks.first_frame;
+    t0.beta = beta0;
+    t0.var_beta = P0(idx::kBeta, idx::kBeta);
+    t0.observed = t0.used = static_cast<int>(ids.size());
+    res.frames.push_back(t0);
+    for (int k = 1; k < F; ++k) {
+      std::vector<Observation> obs;
+      for (const auto& p : tracks.frames[k])
+        if (pidx[p.id] >= 0) obs.push_back({pidx[p.id], uvOf(p.px)});
+      const FrameStats fs = f.step(obs);
+      if (!fs.ok()) {
+        res.stopped = stopReason(tracks.first_frame + k, fs, PointModel::kMinPoints);
+        break;
+      }
+      TrackFrame tf;
+      tf.frame = tracks.first_frame + k;
+      tf.R = f.rotation();
+      tf.t = f.translation();
+      tf.beta = f.beta();
+      tf.var_beta = f.ekf().P()(idx::kBeta, idx::kBeta);
+      tf.observed = static_cast<int>(obs.size());
+      tf.used = fs.update.used;
+      tf.gated = fs.update.gated;
+      tf.nis_per_dof = fs.update.nis_dof > 0 ? fs.update.nis / fs.update.nis_dof : 0.0;
+      accumulateResiduals(f, obs, fs, std::vector<int>(obs.size(), 0), s, &sum2, &cnt, &tf.rms_px);
+      res.frames.push_back(tf);
+      if (progress) progress(k + 1, F);
+    }
+    res.plane_rms_px = {cnt[0] ? std::sqrt(sum2[0] / cnt[0]) : 0.0};
+    return res;
+  }
+
+  // Plane models.
+  int m = 1;
+  if (o.model == TrackModel::Planes) {
+    m = 0;
+    for (int id = 0; id < tracks.idBound(); ++id) m = std::max(m, labels[id] + 1);
+    if (m == 0) throw std::invalid_argument("planes model: no track is labelled with a plane");
+  }
+  std::vector<int> ref_count(m, 0);
+  std::vector<int> ids;
+  for (const auto& p : tracks.frames[0])
+    if (usable(p.id, m)) {
+      ids.push_back(p.id);
+      ++ref_count[labels[p.id]];
+    }
+  for (int j = 0; j < m; ++j)
+    if (ref_count[j] < PlaneModel::kMinPoints)
+      throw std::invalid_argument("plane " + std::to_string(j) + ": " + std::to_string(ref_count[j]) +
+                                  " tracks in the reference frame, the plane model needs at least 5");
+  const int n = 7 + 3 * m;
+  std::vector<Eigen::Vector2d> ref;
+  std::vector<int> lab;
+  for (int id : ids) {
+    ref.push_back(uvOf(tracks.find(0, id)->px));
+    lab.push_back(labels[id]);
+  }
+  Eigen::VectorXd x0 = Eigen::VectorXd::Zero(n);
+  Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(n, n);
+  std::vector<bool> fixed(n, false);
+  x0[idx::kBeta] = beta0;
+  P0(idx::kBeta, idx::kBeta) = known_focal ? 0.0 : std::pow(o.beta_sd0 * beta0, 2);
+  fixed[idx::kBeta] = known_focal;
+  const double v = o.normal_sd0 * o.normal_sd0;
+  for (int j = 0; j < m; ++j) {
+    const int b = PlaneModel::planeIndex(j);
+    x0[b + 2] = 1.0;
+    P0(b, b) = P0(b + 1, b + 1) = v;
+    P0(b + 2, b + 2) = j == 0 ? 0.0 : v;
+  }
+  fixed[PlaneModel::planeIndex(0) + 2] = true;  // scale gauge: N_Z of plane 0
+  RecursiveFilter<PlaneModel> f(PlaneModel(ref, lab, m), Ekf(x0, P0, fixed), fo);
+  std::vector<int> pidx(tracks.idBound(), -1);
+  for (size_t i = 0; i < ids.size(); ++i) pidx[ids[i]] = static_cast<int>(i);
+  res.planes = m;
+  res.plane_tracks = ref_count;
+  res.plane_new_tracks.assign(m, 0);
+  res.transfer_failed.assign(m, 0);
+  std::vector<double> sum2(m, 0.0);
+  std::vector<long> cnt(m, 0);
+  auto record = [&](int k, TrackFrame* tf) {
+    tf->frame = tracks.first_frame + k;
+    tf->R = f.rotation();
+    tf->t = f.translation();
+    tf->beta = f.beta();
+    tf->var_beta = f.ekf().P()(idx::kBeta, idx::kBeta);
+    for (int j = 0; j < m; ++j) {
+      const int b = PlaneModel::planeIndex(j);
+      tf->N.push_back(f.ekf().x().segment<3>(b));
+      tf->cov_N.push_back(f.ekf().P().block<3, 3>(b, b));
+      tf->cov_beta_N.push_back(f.ekf().P().block<1, 3>(idx::kBeta, b).transpose());
+    }
+  };
+  TrackFrame t0;
+  record(0, &t0);
+  t0.observed = t0.used = static_cast<int>(ids.size());
+  res.frames.push_back(t0);
+  for (int k = 1; k < F; ++k) {
+    std::vector<Observation> obs;
+    std::vector<int> grp;
+    for (const auto& p : tracks.frames[k])
+      if (pidx[p.id] >= 0) {
+        obs.push_back({pidx[p.id], uvOf(p.px)});
+        grp.push_back(labels[p.id]);
+      }
+    const FrameStats fs = f.step(obs);
+    if (!fs.ok()) {
+      res.stopped = stopReason(tracks.first_frame + k, fs, PlaneModel::kMinPoints);
+      break;
+    }
+    TrackFrame tf;
+    record(k, &tf);
+    tf.observed = static_cast<int>(obs.size());
+    tf.used = fs.update.used;
+    tf.gated = fs.update.gated;
+    tf.nis_per_dof = fs.update.nis_dof > 0 ? fs.update.nis / fs.update.nis_dof : 0.0;
+    accumulateResiduals(f, obs, fs, grp, s, &sum2, &cnt, &tf.rms_px);
+    res.frames.push_back(tf);
+    // Tracks born in this frame join their plane, transferred to the reference frame.
+    if (o.add_new_tracks) {
+      for (const auto& p : tracks.frames[k]) {
+        if (spans[p.id].first != k || !usable(p.id, m)) continue;
+        const int j = labels[p.id];
+        Eigen::Vector2d uv_ref;
+        const MeasureStatus st = PlaneModel::transferToReference(tf.N[j], tf.beta, tf.R, tf.t, uvOf(p.px), &uv_ref);
+        if (st != MeasureStatus::Ok) {
+          ++res.transfer_failed[j];
+          continue;
+        }
+        pidx[p.id] = f.mutableModel().addPoint(uv_ref, j);
+        ++res.plane_tracks[j];
+        ++res.plane_new_tracks[j];
+      }
+    }
+    if (progress) progress(k + 1, F);
+  }
+  res.plane_rms_px.resize(m);
+  for (int j = 0; j < m; ++j) res.plane_rms_px[j] = cnt[j] ? std::sqrt(sum2[j] / cnt[j]) : 0.0;
+  return res;
+}
+
+}  // namespace rsfm
+
+namespace rsfm {
+
+MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matrix4d& cov) {
+  MetricPlane p;
+  const double r = N.norm();
+  p.n = N / r;
+  p.d = (1.0 + N.z() / beta) / r;
+  // Jacobians with respect to (beta, N).
+  Eigen::Matrix<double, 3, 4> Jn = Eigen::Matrix<double, 3, 4>::Zero();
+  Jn.rightCols<3>() = (Eigen::Matrix3d::Identity() - p.n * p.n.transpose()) / r;
+  Eigen::Matrix<double, 1, 4> Jd;
+  Jd(0) = -N.z() / (beta * beta * r);
+  Jd.rightCols<3>() = Eigen::RowVector3d(0, 0, 1.0 / (beta * r)) - p.d * N.transpose() / (r * r);
+  const Eigen::Matrix3d cn = Jn * cov * Jn.transpose();
+  p.sd_angle_deg = std::sqrt(std::max(0.0, cn.trace())) * 180.0 / M_PI;
+  p.sd_d = std::sqrt(std::max(0.0, (Jd * cov * Jd.transpose())(0, 0)));
+  if (p.d < 0) {
+    p.n = -p.n;
+    p.d = -p.d;
+  }
+  return p;
+}
+
+}  // namespace rsfm

@@ -1,0 +1,31 @@
+#include "rsfm/track/tracks.hpp"
+
+#include <algorithm>
+
+namespace rsfm {
+
+int Tracks::idBound() const {
+  int b = 0;
+  for (const auto& f : frames)
+    for (const auto& p : f) b = std::max(b, p.id + 1);
+  return b;
+}
+
+const TrackPoint* Tracks::find(int k, int id) const {
+  if (k < 0 || k >= numFrames()) return nullptr;
+  const auto& f = frames[k];
+  auto it = std::lower_bound(f.begin(), f.end(), id, [](const TrackPoint& p, int v) { return p.id < v; });
+  return (it != f.end() && it->id == id) ? &*it : nullptr;
+}
+
+std::vector<TrackSpan> trackSpans(const Tracks& t) {
+  std::vector<TrackSpan> s(t.idBound());
+  for (int k = 0; k < t.numFrames(); ++k)
+    for (const auto& p : t.frames[k]) {
+      if (s[p.id].first < 0) s[p.id].first = k;
+      s[p.id].last = k;
+    }
+  return s;
+}
+
+}  // namespace rsfm

@@ -1,0 +1,129 @@
+#include "rsfm/vision/frame_source.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/videoio.hpp>
+
+#include "rsfm/io/input_error.hpp"
+
+namespace rsfm::vision {
+
+namespace fs = std::filesystem;
+using io::inputError;
+
+namespace {
+
+bool isImageFile(const fs::path& p) {
+  std::string e = p.extension().string();
+  std::transform(e.begin(), e.end(), e.begin(), [](unsigned char c) { return std::tolower(c); });
+  return e == ".png" || e == ".jpg" || e == ".jpeg" || e == ".pgm" || e == ".ppm" || e == ".pnm" ||
+         e == ".bmp" || e == ".tif" || e == ".tiff" || e == ".webp";
+}
+
+std::string formatPattern(const std::string& pattern, int i) {
+  std::vector<char> buf(pattern.size() + 64);
+  std::snprintf(buf.data(), buf.size(), pattern.c_str(), i);  // NOLINT: validated pattern
+  return buf.data();
+}
+
+/// A pattern must contain exactly one integer conversion (%d, %04d, ...).
+bool validPattern(const std::string& p) {
+  int conversions = 0;
+  for (size_t i = 0; i < p.size(); ++i) {
+    if (p[i] != '%') continue;
+    if (i + 1 < p.size() && p[i + 1] == '%') {
+      ++i;
+      continue;
+    }
+    size_t j = i + 1;
+    while (j < p.size() && (std::isdigit(static_cast<unsigned char>(p[j])))) ++j;
+    if (j >= p.size() || p[j] != 'd') return false;
+    ++conversions;
+    i = j;
+  }
+  return conversions == 1;
+}
+
+}  // namespace
+
+FrameSource::FrameSource(const std::string& input) : input_(input) {
+  // FFmpeg's own decoder chatter ("decode_slice_header error") is not ours to print; decode
+  // failures are detected and reported by read(). A user's setting wins.
+  ::setenv("OPENCV_FFMPEG_LOGLEVEL", "-8", 0);
+  std::error_code ec;
+  if (input.find('%') != std::string::npos) {
+    kind_ = Kind::Pattern;
+    if (!validPattern(input))
+      throw io::InputError(input + ": an image-sequence pattern needs exactly one integer field such as %04d");
+    int start = -1;
+    for (int i = 0; i <= 1000 && start < 0; ++i)
+      if (fs::exists(formatPattern(input, i), ec)) start = i;
+    if (start < 0) throw inputError(input, 0, "no image matches the pattern (tried indices 0..1000)");
+    int i = start;
+    while (fs::exists(formatPattern(input, i), ec)) files_.push_back(formatPattern(input, i++));
+    for (int gap = 1; gap <= 10; ++gap)
+      if (fs::exists(formatPattern(input, i + gap), ec))
+        throw inputError(formatPattern(input, i), 0,
+                         fmt::format("missing frame: the sequence stops at index {} but index {} exists", i - 1, i + gap));
+    count_ = static_cast<int>(files_.size());
+    return;
+  }
+  if (!fs::exists(input, ec)) throw inputError(input, 0, "no such file or directory");
+  if (fs::is_directory(input, ec)) {
+    kind_ = Kind::Folder;
+    for (const auto& e : fs::directory_iterator(input, ec))
+      if (e.is_regular_file() && isImageFile(e.path())) files_.push_back(e.path());
+    if (files_.empty()) throw inputError(input, 0, "folder contains no images (png, jpg, pgm, ppm, bmp, tif)");
+    std::sort(files_.begin(), files_.end());
+    count_ = static_cast<int>(files_.size());
+    return;
+  }
+  if (input.size() > 3 && input.substr(input.size() - 3) == ".gz")
+    throw inputError(input, 0, "compressed file: decompress it first (e.g. zcat FILE.gz > FILE)");
+  if (isImageFile(input)) throw inputError(input, 0, "a single image is not a sequence (give a folder or a pattern)");
+  kind_ = Kind::Video;
+  cap_ = std::make_unique<cv::VideoCapture>(input, cv::CAP_FFMPEG);
+  if (!cap_->isOpened()) cap_ = std::make_unique<cv::VideoCapture>(input, cv::CAP_ANY);
+  if (!cap_->isOpened()) throw inputError(input, 0, "cannot be opened as a video");
+  const double n = cap_->get(cv::CAP_PROP_FRAME_COUNT);
+  count_ = n > 0 ? static_cast<int>(n) : -1;
+  const double fps = cap_->get(cv::CAP_PROP_FPS);
+  if (fps > 0 && fps < 1000) fps_ = fps;
+}
+
+FrameSource::~FrameSource() = default;
+FrameSource::FrameSource(FrameSource&&) noexcept = default;
+FrameSource& FrameSource::operator=(FrameSource&&) noexcept = default;
+
+bool FrameSource::read(cv::Mat* img) {
+  if (kind_ == Kind::Video) {
+    if (!cap_->read(*img) || img->empty()) {
+      // Containers often over-count by one; a failure well before the declared end is a
+      // corrupt or truncated stream.
+      if (count_ > 0 && index_ + 1 < count_ - 1)
+        throw inputError(input_, 0, fmt::format("frame {} cannot be decoded (the video declares {} frames)", index_ + 1, count_));
+      if (index_ < 0) throw inputError(input_, 0, "no frame can be decoded");
+      return false;
+    }
+  } else {
+    if (index_ + 1 >= static_cast<int>(files_.size())) return false;
+    const fs::path& f = files_[index_ + 1];
+    *img = cv::imread(f.string(), cv::IMREAD_UNCHANGED);
+    if (img->empty()) throw inputError(f, 0, fmt::format("frame {} cannot be decoded as an image", index_ + 1));
+  }
+  ++index_;
+  if (index_ == 0) {
+    size_ = img->size();
+  } else if (img->size() != size_) {
+    throw inputError(kind_ == Kind::Video ? fs::path(input_) : files_[index_], 0,
+                     fmt::format("frame {} is {}x{}, the first frame is {}x{}", index_, img->cols, img->rows,
+                                 size_.width, size_.height));
+  }
+  return true;
+}
+
+}  // namespace rsfm::vision

@@ -1,0 +1,134 @@
+#include "rsfm/vision/klt_tracker.hpp"
+
+#include <algorithm>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
+
+namespace rsfm::vision {
+
+void KltTracker::detect(const cv::Mat& gray, bool first) {
+  const int want = o_.max_tracks - static_cast<int>(cur_.size());
+  if (want <= 0) return;
+  cv::Mat mask(gray.size(), CV_8U, cv::Scalar(0));
+  const int b = o_.border_px;
+  if (o_.roi.size() >= 3) {
+    std::vector<cv::Point> poly;
+    if (first) {
+      for (const auto& p : o_.roi) poly.emplace_back(cvRound(p.x), cvRound(p.y));
+    } else if (cur_.size() >= 3) {
+      std::vector<cv::Point2f> pts;
+      for (const auto& t : cur_) pts.emplace_back(static_cast<float>(t.px.x()), static_cast<float>(t.px.y()));
+      std::vector<cv::Point2f> hull;
+      cv::convexHull(pts, hull);
+      for (const auto& p : hull) poly.emplace_back(cvRound(p.x), cvRound(p.y));
+    }
+    if (poly.size() >= 3) cv::fillPoly(mask, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
+  } else {
+    mask(cv::Rect(b, b, std::max(1, gray.cols - 2 * b), std::max(1, gray.rows - 2 * b))).setTo(255);
+  }
+  for (const auto& t : cur_)
+    cv::circle(mask, cv::Point(cvRound(t.px.x()), cvRound(t.px.y())), cvRound(o_.min_distance_px), cv::Scalar(0), -1);
+  std::vector<cv::Point2f> corners;
+  cv::goodFeaturesToTrack(gray, corners, want, o_.quality, o_.min_distance_px, mask, o_.block_size);
+  if (corners.empty()) return;
+  cv::cornerSubPix(gray, corners, cv::Size(5, 5), cv::Size(-1, -1),
+                   cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 20, 0.01));
+  for (const auto& c : corners) cur_.push_back({next_id_++, Eigen::Vector2d(c.x, c.y)});
+}
+
+void KltTracker::process(const cv::Mat& frame) {
+  cv::Mat gray;
+  if (frame.channels() == 3) cv::cvtColor(frame, gray, cv::COLOR_BGR2GRAY);
+  else if (frame.channels() == 4) cv::cvtColor(frame, gray, cv::COLOR_BGRA2GRAY);
+  else gray = frame;
+  if (gray.depth() != CV_8U) {
+    cv::Mat g8;
+    gray.convertTo(g8, CV_8U, gray.depth() == CV_16U ? 1.0 / 256.0 : 1.0);
+    gray = g8;
+  }
+  const cv::Size win(o_.window_px, o_.window_px);
+  std::vector<cv::Mat> pyr;
+  cv::buildOpticalFlowPyramid(gray, pyr, win, o_.pyramid_levels);
+  if (frames_.empty()) {
+    size_ = gray.size();
+    detect(gray, true);
+  } else if (!cur_.empty()) {
+    std::vector<cv::Point2f> p0, p1, pb;
+    p0.reserve(cur_.size());
+    for (const auto& t : cur_) p0.emplace_back(static_cast<float>(t.px.x()), static_cast<float>(t.px.y()));
+    std::vector<uchar> st, stb;
+    std::vector<float> err, errb;
+    const cv::TermCriteria term(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 30, 0.01);
+    cv::calcOpticalFlowPyrLK(prev_pyr_, pyr, p0, p1, st, err, win, o_.pyramid_levels, term, 0, o_.min_eig);
+    pb = p0;
+    cv::calcOpticalFlowPyrLK(pyr, prev_pyr_, p1, pb, stb, errb, win, o_.pyramid_levels, term,
+                             cv::OPTFLOW_USE_INITIAL_FLOW, o_.min_eig);
+    std::vector<TrackPoint> next;
+    next.reserve(cur_.size());
+    const double b = o_.border_px;
+    for (size_t i = 0; i < cur_.size(); ++i) {
+      if (!st[i] || !stb[i]) continue;
+      const double fb = std::hypot(pb[i].x - p0[i].x, pb[i].y - p0[i].y);
+      if (!(fb <= o_.fb_max_px)) continue;
+      if (p1[i].x < b || p1[i].y < b || p1[i].x > gray.cols - 1 - b || p1[i].y > gray.rows - 1 - b) continue;
+      next.push_back({cur_[i].id, Eigen::Vector2d(p1[i].x, p1[i].y)});
+    }
+    cur_.swap(next);
+    if (static_cast<double>(cur_.size()) < o_.redetect_below * o_.max_tracks) detect(gray, false);
+  }
+  std::sort(cur_.begin(), cur_.end(), [](const TrackPoint& a, const TrackPoint& c) { return a.id < c.id; });
+  frames_.push_back(cur_);
+  prev_pyr_ = std::move(pyr);
+}
+
+Tracks KltTracker::tracks(int first_frame) const {
+  Tracks t;
+  t.image.width = size_.width;
+  t.image.height = size_.height;
+  t.image.cx = (size_.width - 1) / 2.0;
+  t.image.cy = (size_.height - 1) / 2.0;
+  t.first_frame = first_frame;
+  t.frames = frames_;
+  return t;
+}
+
+}  // namespace rsfm::vision
+
+#include <fmt/format.h>
+
+#include "rsfm/io/input_error.hpp"
+#include "rsfm/vision/frame_source.hpp"
+
+namespace rsfm::vision {
+
+Tracks trackInput(const std::string& input, const TrackerOptions& options, FrameRange range,
+                  const std::function<void(int, int)>& progress) {
+  FrameSource src(input);
+  KltTracker tracker(options);
+  cv::Mat img;
+  int total = -1;
+  if (src.countHint() > 0) {
+    const int end = range.last >= 0 ? std::min(range.last, src.countHint() - 1) : src.countHint() - 1;
+    total = end - range.first + 1;
+  }
+  int used = 0;
+  while (src.read(&img)) {
+    if (src.index() < range.first) continue;
+    if (range.last >= 0 && src.index() > range.last) break;
+    tracker.process(img);
+    ++used;
+    if (progress) progress(used, total > 0 ? std::max(total, used) : -1);
+  }
+  if (used == 0)
+    throw io::InputError(fmt::format("{}: the frame range starts at {} but the input has {} frames", input,
+                                     range.first, src.index() + 1));
+  if (used < 2) throw io::InputError(fmt::format("{}: only one frame in range; tracking needs at least 2", input));
+  if (range.last >= 0 && src.index() < range.last && used < range.last - range.first + 1)
+    throw io::InputError(fmt::format("{}: the frame range ends at {} but the input has only {} frames", input,
+                                     range.last, src.index() + 1));
+  Tracks t = tracker.tracks(range.first);
+  t.source = input;
+  return t;
+}
+
+}  // namespace rsfm::vision

@@ -1,0 +1,115 @@
+#include "rsfm/vision/overlay.hpp"
+
+#include <fmt/format.h>
+
+#include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
+#include <stdexcept>
+
+#include "rsfm/camera.hpp"
+#include "rsfm/models/plane_model.hpp"
+#include "rsfm/vision/frame_source.hpp"
+
+namespace rsfm::vision {
+
+namespace {
+
+const cv::Scalar kColours[] = {{255, 160, 0}, {0, 200, 0}, {255, 0, 200}, {0, 200, 255}, {200, 200, 0}};
+
+cv::Scalar colourOf(int label) {
+  if (label == -1) return {0, 0, 255};
+  if (label < 0) return {160, 160, 160};
+  return kColours[label % 5];
+}
+
+/// Grid nodes of plane j: a 9x9 grid over the bounding box of the plane's reference tracks,
+/// back-projected onto the plane (reference frame, A&P coordinates, eq. 12) with the final estimate.
+std::vector<std::vector<Eigen::Vector3d>> planeGrid(const Tracks& tracks, const std::vector<int>& labels, int j,
+                                                    const TrackFrame& fin, double s) {
+  double x0 = 1e9, y0 = 1e9, x1 = -1e9, y1 = -1e9;
+  int n = 0;
+  for (const auto& p : tracks.frames[0])
+    if (p.id < static_cast<int>(labels.size()) && labels[p.id] == j) {
+      x0 = std::min(x0, p.px.x()), y0 = std::min(y0, p.px.y());
+      x1 = std::max(x1, p.px.x()), y1 = std::max(y1, p.px.y());
+      ++n;
+    }
+  std::vector<std::vector<Eigen::Vector3d>> g;
+  if (n < 3) return g;
+  const int G = 9;
+  g.assign(G, std::vector<Eigen::Vector3d>(G, Eigen::Vector3d::Constant(std::nan(""))));
+  for (int a = 0; a < G; ++a)
+    for (int b = 0; b < G; ++b) {
+      const Eigen::Vector2d px(x0 + (x1 - x0) * b / (G - 1), y0 + (y1 - y0) * a / (G - 1));
+      const Eigen::Vector2d uv((px.x() - tracks.image.cx) / s, (px.y() - tracks.image.cy) / s);
+      Eigen::Vector3d X;
+      if (PlaneModel::point(fin.N[j], fin.beta, uv, &X, nullptr, nullptr) == MeasureStatus::Ok) g[a][b] = X;
+    }
+  return g;
+}
+
+}  // namespace
+
+void writeOverlay(const std::string& input, FrameRange range, const Tracks& tracks, const std::vector<int>& labels,
+                  const TrackFilterResult& result, const std::filesystem::path& path) {
+  FrameSource src(input);
+  const double s = result.scale_px;
+  const TrackFrame& fin = result.frames.back();
+  std::vector<std::vector<std::vector<Eigen::Vector3d>>> grids;
+  for (int j = 0; j < static_cast<int>(fin.N.size()); ++j) grids.push_back(planeGrid(tracks, labels, j, fin, s));
+  cv::VideoWriter vw;
+  cv::Mat img, bgr;
+  size_t fi = 0;
+  while (src.read(&img) && fi < result.frames.size()) {
+    if (src.index() < range.first) continue;
+    const int k = src.index() - range.first;  // index within tracks.frames
+    if (img.channels() == 1) cv::cvtColor(img, bgr, cv::COLOR_GRAY2BGR);
+    else bgr = img.clone();
+    if (!vw.isOpened()) {
+      vw.open(path.string(), cv::VideoWriter::fourcc('m', 'p', '4', 'v'), src.fps(), bgr.size());
+      if (!vw.isOpened()) throw std::runtime_error(fmt::format("{}: cannot open a video writer (mp4v)", path.string()));
+    }
+    const TrackFrame& tf = result.frames[fi];
+    // Plane grids with this frame's motion: u = X_C / (1 + beta Z_C), X_C = t + R X.
+    for (size_t j = 0; j < grids.size(); ++j) {
+      const auto& g = grids[j];
+      if (g.empty()) continue;
+      auto proj = [&](const Eigen::Vector3d& X, cv::Point2f* q) {
+        if (!X.allFinite()) return false;
+        const Eigen::Vector3d Xc = tf.t + tf.R * X;
+        const double w = 1.0 + tf.beta * Xc.z();
+        if (!(w > 1e-6)) return false;
+        *q = cv::Point2f(static_cast<float>(Xc.x() / w * s + tracks.image.cx),
+                         static_cast<float>(Xc.y() / w * s + tracks.image.cy));
+        return std::abs(q->x) < 1e5 && std::abs(q->y) < 1e5;
+      };
+      const cv::Scalar c = colourOf(static_cast<int>(j));
+      for (size_t a = 0; a < g.size(); ++a)
+        for (size_t b = 0; b < g[a].size(); ++b) {
+          cv::Point2f p, q;
+          if (!proj(g[a][b], &p)) continue;
+          if (b + 1 < g[a].size() && proj(g[a][b + 1], &q)) cv::line(bgr, p, q, c, 1, cv::LINE_AA);
+          if (a + 1 < g.size() && proj(g[a + 1][b], &q)) cv::line(bgr, p, q, c, 1, cv::LINE_AA);
+        }
+    }
+    if (k < tracks.numFrames())
+      for (const auto& p : tracks.frames[k]) {
+        const int l = p.id < static_cast<int>(labels.size()) ? labels[p.id] : -2;
+        const cv::Point2f q(static_cast<float>(p.px.x()), static_cast<float>(p.px.y()));
+        if (l == -1) {
+          cv::drawMarker(bgr, q, colourOf(l), cv::MARKER_CROSS, 7, 1, cv::LINE_AA);
+        } else {
+          cv::circle(bgr, q, 3, colourOf(l), l >= 0 ? -1 : 1, cv::LINE_AA);
+        }
+      }
+    cv::putText(bgr, fmt::format("frame {}  f = {:.0f} px", tf.frame, s / tf.beta), {10, 22}, cv::FONT_HERSHEY_SIMPLEX,
+                0.6, {255, 255, 255}, 2, cv::LINE_AA);
+    cv::putText(bgr, fmt::format("frame {}  f = {:.0f} px", tf.frame, s / tf.beta), {10, 22}, cv::FONT_HERSHEY_SIMPLEX,
+                0.6, {0, 0, 0}, 1, cv::LINE_AA);
+    vw.write(bgr);
+    ++fi;
+  }
+  if (fi == 0) throw std::runtime_error(input + ": no frame to draw the overlay on");
+}
+
+}  // namespace rsfm::vision

@@ -1,0 +1,312 @@
+#include "rsfm/vision/plane_finder.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
+#include <random>
+#include <stdexcept>
+
+namespace rsfm::vision {
+
+const char* toString(PlaneVerdict v) {
+  switch (v) {
+    case PlaneVerdict::Accepted: return "accepted";
+    case PlaneVerdict::Static: return "static";
+    case PlaneVerdict::OtherMotion: return "other-motion";
+    case PlaneVerdict::TooFew: return "too-few";
+  }
+  return "?";
+}
+
+int PlaneFinding::numPlanes() const {
+  int m = 0;
+  for (const auto& c : candidates) m += c.verdict == PlaneVerdict::Accepted;
+  return m;
+}
+
+int PlaneFinding::count(int label) const {
+  return static_cast<int>(std::count(labels.begin(), labels.end(), label));
+}
+
+namespace {
+
+cv::Point2d apply(const cv::Matx33d& H, const cv::Point2d& p) {
+  const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1.0);
+  return {q[0] / q[2], q[1] / q[2]};
+}
+
+cv::Point2d pt(const TrackPoint& t) { return {t.px.x(), t.px.y()}; }
+
+/// Least-squares homography from correspondences (>= 4), or false.
+bool fitH(const std::vector<cv::Point2d>& a, const std::vector<cv::Point2d>& b, cv::Matx33d* H) {
+  if (a.size() < 4) return false;
+  cv::Mat h = cv::findHomography(a, b, 0);
+  if (h.empty()) return false;
+  *H = cv::Matx33d(h);
+  return std::isfinite((*H)(2, 2));
+}
+
+/// Plane+parallax test (Irani & Anandan): points of a second plane moving rigidly with the first
+/// satisfy x' ~ H1 x + parallax along lines through one epipole e'. RANSAC over pairs of points
+/// for e'; returns the fraction of parallax points within `tol_px` of their epipolar line
+/// (-1 when fewer than 5 points show parallax).
+double sameMotionFraction(const cv::Matx33d& H1, const std::vector<cv::Point2d>& x, const std::vector<cv::Point2d>& xp,
+                          double tol_px, unsigned seed) {
+  std::vector<cv::Vec3d> a, b;  // H1 x and x' (homogeneous, pixels)
+  for (size_t i = 0; i < x.size(); ++i) {
+    const cv::Point2d h = apply(H1, x[i]);
+    if (std::hypot(h.x - xp[i].x, h.y - xp[i].y) < 2.0 * tol_px) continue;  // no parallax
+    a.emplace_back(h.x, h.y, 1.0);
+    b.emplace_back(xp[i].x, xp[i].y, 1.0);
+  }
+  const int n = static_cast<int>(a.size());
+  if (n < 5) return -1.0;
+  auto dist = [&](const cv::Vec3d& e, int i) {
+    const cv::Vec3d l = e.cross(a[i]);  // epipolar line through e and H1 x
+    const double nrm = std::hypot(l[0], l[1]);
+    return nrm < 1e-12 ? 1e9 : std::abs(l.dot(b[i])) / nrm;
+  };
+  std::mt19937 rng(seed);
+  std::uniform_int_distribution<int> pick(0, n - 1);
+  int best = 0;
+  for (int it = 0; it < 300; ++it) {
+    const int i = pick(rng), j = pick(rng);
+    if (i == j) continue;
+    const cv::Vec3d e = a[i].cross(b[i]).cross(a[j].cross(b[j]));  // intersection of the two lines
+    if (cv::norm(e) < 1e-12) continue;
+    int in = 0;
+    for (int k = 0; k < n; ++k) in += dist(e, k) < tol_px;
+    best = std::max(best, in);
+  }
+  return static_cast<double>(best) / n;
+}
+
+}  // namespace
+
+PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
+  if (o.max_planes < 1 || o.min_plane_tracks < 4 || !(o.ransac_px > 0) || !(o.verify_px > 0) ||
+      !(o.min_alive_fraction > 0 && o.min_alive_fraction <= 1))
+    throw std::invalid_argument("plane finder: options out of range");
+  const int F = tracks.numFrames();
+  const int ids = tracks.idBound();
+  PlaneFinding res;
+  res.labels.assign(ids, -1);
+  if (F < 2) return res;
+  const auto spans = trackSpans(tracks);
+  for (int id = 0; id < ids; ++id)
+    if (spans[id].first > 0 && spans[id].length() < o.min_new_track_frames) res.labels[id] = -2;
+  std::vector<int> ref_ids;
+  for (const auto& p : tracks.frames[0]) ref_ids.push_back(p.id);
+  const int n0 = static_cast<int>(ref_ids.size());
+
+  // Pair frame: the last frame where enough reference tracks are alive.
+  int pair = 1;
+  for (int k = 1; k < F; ++k) {
+    int alive = 0;
+    for (int id : ref_ids) alive += tracks.find(k, id) != nullptr;
+    if (alive >= std::max(o.min_alive_fraction * n0, 2.0 * o.min_plane_tracks)) pair = k;
+  }
+  res.pair_frame = pair;
+
+  // Per-frame least-squares homographies of a member set; drops members that stray.
+  auto fitAllFrames = [&](FoundPlane* c) {
+    std::vector<int> members = c->members;
+    for (int round = 0; round < 2; ++round) {
+      c->H.assign(F, cv::Matx33d::eye());
+      std::vector<char> bad(ids, 0);
+      for (int k = 1; k < F; ++k) {
+        std::vector<cv::Point2d> a, b;
+        std::vector<int> who;
+        for (int id : members) {
+          const TrackPoint* p0 = tracks.find(0, id);
+          const TrackPoint* pk = tracks.find(k, id);
+          if (p0 && pk) {
+            a.push_back(pt(*p0));
+            b.push_back(pt(*pk));
+            who.push_back(id);
+          }
+        }
+        if (!fitH(a, b, &c->H[k])) {
+          c->H[k] = c->H[k - 1];
+          continue;
+        }
+        for (size_t i = 0; i < a.size(); ++i) {
+          const cv::Point2d q = apply(c->H[k], a[i]);
+          if (std::hypot(q.x - b[i].x, q.y - b[i].y) > o.verify_px) bad[who[i]] = 1;
+        }
+      }
+      std::vector<int> keep;
+      for (int id : members)
+        if (!bad[id]) keep.push_back(id);
+      const bool changed = keep.size() != members.size();
+      members.swap(keep);
+      if (!changed) break;
+    }
+    c->members = members;
+    // Largest median displacement from the reference over the frames.
+    double motion = 0.0;
+    for (int k = 1; k < F; k += std::max(1, F / 20)) {
+      std::vector<double> d;
+      for (int id : members) {
+        const TrackPoint* p0 = tracks.find(0, id);
+        const TrackPoint* pk = tracks.find(k, id);
+        if (p0 && pk) d.push_back((pk->px - p0->px).norm());
+      }
+      if (d.size() < 3) continue;
+      std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
+      motion = std::max(motion, d[d.size() / 2]);
+    }
+    c->median_motion_px = motion;
+  };
+
+  std::vector<FoundPlane> cands;
+  if (!o.rois.empty()) {
+    for (size_t j = 0; j < o.rois.size(); ++j) cands.emplace_back();
+    for (int id : ref_ids) {
+      const cv::Point2d p = pt(*tracks.find(0, id));
+      for (size_t j = 0; j < o.rois.size(); ++j)
+        if (cv::pointPolygonTest(o.rois[j], cv::Point2f(static_cast<float>(p.x), static_cast<float>(p.y)), false) >= 0) {
+          cands[j].members.push_back(id);
+          break;
+        }
+    }
+    for (auto& c : cands) {
+      fitAllFrames(&c);
+      if (static_cast<int>(c.members.size()) < o.min_plane_tracks) c.verdict = PlaneVerdict::TooFew;
+    }
+  } else {
+    // Sequential RANSAC at (reference, pair).
+    cv::theRNG().state = o.seed;
+    std::vector<int> remaining;
+    for (int id : ref_ids)
+      if (tracks.find(pair, id)) remaining.push_back(id);
+    for (int round = 0; round < o.max_planes + 3 && static_cast<int>(remaining.size()) >= o.min_plane_tracks; ++round) {
+      std::vector<cv::Point2d> a, b;
+      for (int id : remaining) {
+        a.push_back(pt(*tracks.find(0, id)));
+        b.push_back(pt(*tracks.find(pair, id)));
+      }
+      std::vector<uchar> mask;
+      cv::Mat h = cv::findHomography(a, b, cv::RANSAC, o.ransac_px, mask, 3000, 0.999);
+      if (h.empty()) break;
+      cv::Matx33d H(h);
+      // Refit on the inliers and re-collect them (twice).
+      for (int it = 0; it < 2; ++it) {
+        std::vector<cv::Point2d> ia, ib;
+        for (size_t i = 0; i < a.size(); ++i)
+          if (mask[i]) {
+            ia.push_back(a[i]);
+            ib.push_back(b[i]);
+          }
+        if (!fitH(ia, ib, &H)) break;
+        for (size_t i = 0; i < a.size(); ++i) {
+          const cv::Point2d q = apply(H, a[i]);
+          mask[i] = std::hypot(q.x - b[i].x, q.y - b[i].y) < o.ransac_px;
+        }
+      }
+      FoundPlane c;
+      std::vector<int> rest;
+      for (size_t i = 0; i < a.size(); ++i) (mask[i] ? c.members : rest).push_back(remaining[i]);
+      if (static_cast<int>(c.members.size()) < o.min_plane_tracks) break;
+      remaining.swap(rest);
+      fitAllFrames(&c);
+      if (static_cast<int>(c.members.size()) < o.min_plane_tracks) c.verdict = PlaneVerdict::TooFew;
+      cands.push_back(std::move(c));
+    }
+    // Merge candidates that are one plane split by the RANSAC threshold: their union must keep
+    // 90 % of its tracks under the per-frame verification.
+    for (bool merged = true; merged;) {
+      merged = false;
+      for (size_t a = 0; a < cands.size() && !merged; ++a)
+        for (size_t b = a + 1; b < cands.size() && !merged; ++b) {
+          if (cands[a].verdict != PlaneVerdict::Accepted || cands[b].verdict != PlaneVerdict::Accepted) continue;
+          FoundPlane u;
+          u.members = cands[a].members;
+          u.members.insert(u.members.end(), cands[b].members.begin(), cands[b].members.end());
+          const size_t total = u.members.size();
+          fitAllFrames(&u);
+          if (u.members.size() >= 0.9 * total) {
+            cands[a] = std::move(u);
+            cands.erase(cands.begin() + static_cast<long>(b));
+            merged = true;
+          }
+        }
+    }
+    // Static planes; then the main plane = the largest moving one; others must share its motion.
+    int main_plane = -1;
+    for (size_t j = 0; j < cands.size(); ++j) {
+      auto& c = cands[j];
+      if (c.verdict != PlaneVerdict::Accepted) continue;
+      if (o.reject_static && c.median_motion_px < o.static_px) {
+        c.verdict = PlaneVerdict::Static;
+        continue;
+      }
+      if (main_plane < 0 || c.members.size() > cands[main_plane].members.size()) main_plane = static_cast<int>(j);
+    }
+    for (size_t j = 0; j < cands.size(); ++j) {
+      auto& c = cands[j];
+      if (c.verdict != PlaneVerdict::Accepted || static_cast<int>(j) == main_plane) continue;
+      std::vector<cv::Point2d> a, b;
+      for (int id : c.members)
+        if (tracks.find(pair, id)) {
+          a.push_back(pt(*tracks.find(0, id)));
+          b.push_back(pt(*tracks.find(pair, id)));
+        }
+      c.same_motion_fraction = sameMotionFraction(cands[main_plane].H[pair], a, b, o.motion_px, o.seed + 17u * j);
+      if (c.same_motion_fraction >= 0 && c.same_motion_fraction < o.same_motion_fraction)
+        c.verdict = PlaneVerdict::OtherMotion;
+    }
+  }
+  // Accepted planes, largest first, at most max_planes.
+  std::vector<int> order;
+  for (size_t j = 0; j < cands.size(); ++j)
+    if (cands[j].verdict == PlaneVerdict::Accepted) order.push_back(static_cast<int>(j));
+  if (o.rois.empty())
+    std::stable_sort(order.begin(), order.end(),
+                     [&](int x, int y) { return cands[x].members.size() > cands[y].members.size(); });
+  if (static_cast<int>(order.size()) > o.max_planes) {
+    for (size_t r = o.max_planes; r < order.size(); ++r) cands[order[r]].verdict = PlaneVerdict::TooFew;
+    order.resize(o.max_planes);
+  }
+  for (size_t r = 0; r < order.size(); ++r) {
+    cands[order[r]].label = static_cast<int>(r);
+    for (int id : cands[order[r]].members) res.labels[id] = static_cast<int>(r);
+  }
+
+  // Later tracks: carried from their first frame b by H(k) H(b)^-1 of exactly one plane.
+  for (int id = 0; id < ids; ++id) {
+    const TrackSpan s = spans[id];
+    if (s.first <= 0 || res.labels[id] == -2) continue;
+    const TrackPoint* pb = tracks.find(s.first, id);
+    if (!pb) continue;
+    int fits = 0, which = -1;
+    for (int j : order) {
+      const auto& c = cands[j];
+      const cv::Matx33d Hb_inv = c.H[s.first].inv();
+      bool ok = true;
+      int checked = 0;
+      const int step = std::max(1, s.length() / 8);
+      for (int k = s.first + step; k <= s.last && ok; k += step) {
+        const TrackPoint* pk = tracks.find(k, id);
+        if (!pk) continue;
+        const cv::Point2d q = apply(c.H[k] * Hb_inv, pt(*pb));
+        ok = std::hypot(q.x - pk->px.x(), q.y - pk->px.y()) < o.verify_px;
+        ++checked;
+      }
+      if (ok && checked > 0) {
+        ++fits;
+        which = c.label;
+      }
+    }
+    if (fits == 1) {
+      res.labels[id] = which;
+      cands[order[which]].members.push_back(id);
+    }
+  }
+  res.candidates = std::move(cands);
+  return res;
+}
+
+}  // namespace rsfm::vision
