@@ -91,7 +91,9 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
                       vision::FrameRange range, double t_start, bool write_tracks) {
   vision::PlaneFinding pf;
   try {
-    pf = vision::findPlanes(tracks, e.finder);
+    vision::PlaneFinderOptions fo = e.finder;
+    if (e.filter.model == TrackModel::Plane && fo.rois.empty()) fo.max_planes = 1;  // the dominant plane only
+    pf = vision::findPlanes(tracks, fo);
   } catch (const std::exception& ex) {
     return fail(kBadInput, ex.what());
   }

@@ -275,10 +275,15 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
     for (int id : cands[order[r]].members) res.labels[id] = static_cast<int>(r);
   }
 
-  // Later tracks: carried from their first frame b by H(k) H(b)^-1 of exactly one plane.
+  // Tracks not yet judged (born later, or reference tracks lost before the pair frame): carried
+  // from their first frame b by H(k) H(b)^-1 of exactly one accepted plane. Members of rejected
+  // candidates stay outliers.
+  std::vector<char> judged(ids, 0);
+  for (const auto& c : cands)
+    for (int id : c.members) judged[id] = 1;
   for (int id = 0; id < ids; ++id) {
     const TrackSpan s = spans[id];
-    if (s.first <= 0 || res.labels[id] == -2) continue;
+    if (s.first < 0 || judged[id] || res.labels[id] == -2 || s.length() < 2) continue;
     const TrackPoint* pb = tracks.find(s.first, id);
     if (!pb) continue;
     int fits = 0, which = -1;
