@@ -45,6 +45,8 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--reference", e->reference, "reference positions: exact | inflate | refine")->capture_default_str();
   a->add_option("--gate", e->gate, "chi-square gate probability per point (0: off)")->capture_default_str();
   a->add_option("--iterations", e->iterations, "update iterations (1: EKF, >1: iterated EKF)")->capture_default_str();
+  a->add_option("--passes", e->filter.passes, "passes over the sequence (>1: restart from the previous pass's planes and focal)")
+      ->capture_default_str();
   a->add_option("--max-planes", e->finder.max_planes, "planes kept at most")->capture_default_str();
   a->add_option("--min-plane-tracks", e->finder.min_plane_tracks, "reference tracks a plane needs")
       ->capture_default_str();
@@ -68,6 +70,7 @@ std::string finishEstimateOptions(EstimateCli* e) {
   if (!(e->q_trans >= 0) || !(e->q_omega >= 0) || !(e->q_beta >= 0)) return "process variances must be >= 0";
   if (!(e->gate >= 0 && e->gate < 1)) return "--gate must be in [0, 1)";
   if (e->iterations < 1) return "--iterations must be >= 1";
+  if (e->filter.passes < 1 || e->filter.passes > 10) return "--passes must be in 1..10";
   if (e->finder.max_planes < 1) return "--max-planes must be >= 1";
   if (e->finder.min_plane_tracks < 5) return "--min-plane-tracks must be >= 5";
   if (!(e->finder.ransac_px > 0)) return "--ransac-px must be positive";

@@ -180,94 +180,110 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     if (ref_count[j] < PlaneModel::kMinPoints)
       throw std::invalid_argument("plane " + std::to_string(j) + ": " + std::to_string(ref_count[j]) +
                                   " tracks in the reference frame, the plane model needs at least 5");
-  const int n = 7 + 3 * m;
-  std::vector<Eigen::Vector2d> ref;
-  std::vector<int> lab;
-  for (int id : ids) {
-    ref.push_back(uvOf(tracks.find(0, id)->px));
-    lab.push_back(labels[id]);
-  }
-  Eigen::VectorXd x0 = Eigen::VectorXd::Zero(n);
-  Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(n, n);
-  std::vector<bool> fixed(n, false);
-  x0[idx::kBeta] = beta0;
-  P0(idx::kBeta, idx::kBeta) = known_focal ? 0.0 : std::pow(o.beta_sd0 * beta0, 2);
-  fixed[idx::kBeta] = known_focal;
-  const double v = o.normal_sd0 * o.normal_sd0;
-  for (int j = 0; j < m; ++j) {
-    const int b = PlaneModel::planeIndex(j);
-    x0[b + 2] = 1.0;
-    P0(b, b) = P0(b + 1, b + 1) = v;
-    P0(b + 2, b + 2) = j == 0 ? 0.0 : v;
-  }
-  fixed[PlaneModel::planeIndex(0) + 2] = true;  // scale gauge: N_Z of plane 0
-  RecursiveFilter<PlaneModel> f(PlaneModel(ref, lab, m), Ekf(x0, P0, fixed), fo);
-  std::vector<int> pidx(tracks.idBound(), -1);
-  for (size_t i = 0; i < ids.size(); ++i) pidx[ids[i]] = static_cast<int>(i);
-  res.planes = m;
-  res.plane_tracks = ref_count;
-  res.plane_new_tracks.assign(m, 0);
-  res.transfer_failed.assign(m, 0);
-  std::vector<double> sum2(m, 0.0);
-  std::vector<long> cnt(m, 0);
-  auto record = [&](int k, TrackFrame* tf) {
-    tf->frame = tracks.first_frame + k;
-    tf->R = f.rotation();
-    tf->t = f.translation();
-    tf->beta = f.beta();
-    tf->var_beta = f.ekf().P()(idx::kBeta, idx::kBeta);
+  if (o.passes < 1) throw std::invalid_argument("estimate: passes must be >= 1");
+  double beta_start = beta0;
+  std::vector<Eigen::Vector3d> N_start(m, Eigen::Vector3d(0.0, 0.0, 1.0));
+  for (int pass = 1; pass <= o.passes; ++pass) {
+    res.frames.clear();
+    res.stopped.clear();
+    const bool last_pass = pass == o.passes;
+    const int n = 7 + 3 * m;
+    std::vector<Eigen::Vector2d> ref;
+    std::vector<int> lab;
+    for (int id : ids) {
+      ref.push_back(uvOf(tracks.find(0, id)->px));
+      lab.push_back(labels[id]);
+    }
+    Eigen::VectorXd x0 = Eigen::VectorXd::Zero(n);
+    Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(n, n);
+    std::vector<bool> fixed(n, false);
+    x0[idx::kBeta] = beta_start;
+    P0(idx::kBeta, idx::kBeta) = known_focal ? 0.0 : std::pow(o.beta_sd0 * beta0, 2);
+    fixed[idx::kBeta] = known_focal;
+    const double v = o.normal_sd0 * o.normal_sd0;
     for (int j = 0; j < m; ++j) {
       const int b = PlaneModel::planeIndex(j);
-      tf->N.push_back(f.ekf().x().segment<3>(b));
-      tf->cov_N.push_back(f.ekf().P().block<3, 3>(b, b));
-      tf->cov_beta_N.push_back(f.ekf().P().block<1, 3>(idx::kBeta, b).transpose());
+      x0.segment<3>(b) = N_start[j];
+      P0(b, b) = P0(b + 1, b + 1) = v;
+      P0(b + 2, b + 2) = j == 0 ? 0.0 : v;
     }
-  };
-  TrackFrame t0;
-  record(0, &t0);
-  t0.observed = t0.used = static_cast<int>(ids.size());
-  res.frames.push_back(t0);
-  for (int k = 1; k < F; ++k) {
-    std::vector<Observation> obs;
-    std::vector<int> grp;
-    for (const auto& p : tracks.frames[k])
-      if (pidx[p.id] >= 0) {
-        obs.push_back({pidx[p.id], uvOf(p.px)});
-        grp.push_back(labels[p.id]);
+    fixed[PlaneModel::planeIndex(0) + 2] = true;  // scale gauge: N_Z of plane 0
+    RecursiveFilter<PlaneModel> f(PlaneModel(ref, lab, m), Ekf(x0, P0, fixed), fo);
+    std::vector<int> pidx(tracks.idBound(), -1);
+    for (size_t i = 0; i < ids.size(); ++i) pidx[ids[i]] = static_cast<int>(i);
+    res.planes = m;
+    res.plane_tracks = ref_count;
+    res.plane_new_tracks.assign(m, 0);
+    res.transfer_failed.assign(m, 0);
+    std::vector<double> sum2(m, 0.0);
+    std::vector<long> cnt(m, 0);
+    auto record = [&](int k, TrackFrame* tf) {
+      tf->frame = tracks.first_frame + k;
+      tf->R = f.rotation();
+      tf->t = f.translation();
+      tf->beta = f.beta();
+      tf->var_beta = f.ekf().P()(idx::kBeta, idx::kBeta);
+      for (int j = 0; j < m; ++j) {
+        const int b = PlaneModel::planeIndex(j);
+        tf->N.push_back(f.ekf().x().segment<3>(b));
+        tf->cov_N.push_back(f.ekf().P().block<3, 3>(b, b));
+        tf->cov_beta_N.push_back(f.ekf().P().block<1, 3>(idx::kBeta, b).transpose());
       }
-    const FrameStats fs = f.step(obs);
-    if (!fs.ok()) {
-      res.stopped = stopReason(tracks.first_frame + k, fs, PlaneModel::kMinPoints);
-      break;
-    }
-    TrackFrame tf;
-    record(k, &tf);
-    tf.observed = static_cast<int>(obs.size());
-    tf.used = fs.update.used;
-    tf.gated = fs.update.gated;
-    tf.nis_per_dof = fs.update.nis_dof > 0 ? fs.update.nis / fs.update.nis_dof : 0.0;
-    accumulateResiduals(f, obs, fs, grp, s, &sum2, &cnt, &tf.rms_px);
-    res.frames.push_back(tf);
-    // Tracks born in this frame join their plane, transferred to the reference frame.
-    if (o.add_new_tracks) {
-      for (const auto& p : tracks.frames[k]) {
-        if (spans[p.id].first != k || !usable(p.id, m)) continue;
-        const int j = labels[p.id];
-        Eigen::Vector2d uv_ref;
-        const MeasureStatus st = PlaneModel::transferToReference(tf.N[j], tf.beta, tf.R, tf.t, uvOf(p.px), &uv_ref);
-        if (st != MeasureStatus::Ok) {
-          ++res.transfer_failed[j];
-          continue;
+    };
+    TrackFrame t0;
+    record(0, &t0);
+    t0.observed = t0.used = static_cast<int>(ids.size());
+    res.frames.push_back(t0);
+    for (int k = 1; k < F; ++k) {
+      std::vector<Observation> obs;
+      std::vector<int> grp;
+      for (const auto& p : tracks.frames[k])
+        if (pidx[p.id] >= 0) {
+          obs.push_back({pidx[p.id], uvOf(p.px)});
+          grp.push_back(labels[p.id]);
         }
-        pidx[p.id] = f.mutableModel().addPoint(uv_ref, j);
-        ++res.plane_tracks[j];
-        ++res.plane_new_tracks[j];
+      const FrameStats fs = f.step(obs);
+      if (!fs.ok()) {
+        res.stopped = stopReason(tracks.first_frame + k, fs, PlaneModel::kMinPoints);
+        break;
       }
+      TrackFrame tf;
+      record(k, &tf);
+      tf.observed = static_cast<int>(obs.size());
+      tf.used = fs.update.used;
+      tf.gated = fs.update.gated;
+      tf.nis_per_dof = fs.update.nis_dof > 0 ? fs.update.nis / fs.update.nis_dof : 0.0;
+      accumulateResiduals(f, obs, fs, grp, s, &sum2, &cnt, &tf.rms_px);
+      res.frames.push_back(tf);
+      // Tracks born in this frame join their plane, transferred to the reference frame.
+      if (o.add_new_tracks) {
+        for (const auto& p : tracks.frames[k]) {
+          if (spans[p.id].first != k || !usable(p.id, m)) continue;
+          const int j = labels[p.id];
+          Eigen::Vector2d uv_ref;
+          const MeasureStatus st = PlaneModel::transferToReference(tf.N[j], tf.beta, tf.R, tf.t, uvOf(p.px), &uv_ref);
+          if (st != MeasureStatus::Ok) {
+            ++res.transfer_failed[j];
+            continue;
+          }
+          pidx[p.id] = f.mutableModel().addPoint(uv_ref, j);
+          ++res.plane_tracks[j];
+          ++res.plane_new_tracks[j];
+        }
+      }
+      if (progress) progress((pass - 1) * F + k + 1, o.passes * F);
     }
-    if (progress) progress(k + 1, F);
+    res.plane_rms_px.resize(m);
+    for (int j = 0; j < m; ++j) res.plane_rms_px[j] = cnt[j] ? std::sqrt(sum2[j] / cnt[j]) : 0.0;
+    res.passes = pass;
+    if (!res.ok()) break;
+    const TrackFrame& fin = res.frames.back();
+    res.pass_focal_px.push_back(s / fin.beta);
+    res.pass_N.push_back(fin.N);
+    if (last_pass) break;
+    beta_start = known_focal ? beta0 : fin.beta;
+    N_start = fin.N;
   }
-  res.plane_rms_px.resize(m);
-  for (int j = 0; j < m; ++j) res.plane_rms_px[j] = cnt[j] ? std::sqrt(sum2[j] / cnt[j]) : 0.0;
   return res;
 }
 

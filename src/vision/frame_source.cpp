@@ -87,7 +87,6 @@ FrameSource::FrameSource(const std::string& input) : input_(input) {
   if (isImageFile(input)) throw inputError(input, 0, "a single image is not a sequence (give a folder or a pattern)");
   kind_ = Kind::Video;
   cap_ = std::make_unique<cv::VideoCapture>(input, cv::CAP_FFMPEG);
-  if (!cap_->isOpened()) cap_ = std::make_unique<cv::VideoCapture>(input, cv::CAP_ANY);
   if (!cap_->isOpened()) throw inputError(input, 0, "cannot be opened as a video");
   const double n = cap_->get(cv::CAP_PROP_FRAME_COUNT);
   count_ = n > 0 ? static_cast<int>(n) : -1;

@@ -36,6 +36,11 @@ struct TrackFilterOptions {
   double normal_sd0 = 1.0;   ///< initial sd of N_X, N_Y (and of N_Z of planes > 0), N_Z0 = 1
   double depth_sd0 = 1.0;    ///< point model: initial sd of each depth alpha (alpha0 = 1)
   int max_point_tracks = 60; ///< point model: reference tracks used at most (O(N^3) per frame)
+  /// Passes over the sequence (plane models). Pass p > 1 restarts from the reference frame with
+  /// the previous pass's final beta and plane(s) as the initial state (same initial covariance):
+  /// only the linearization point changes, which removes most of the bias of a poor start
+  /// (docs/estimate.md). 1 = purely recursive.
+  int passes = 2;
   bool add_new_tracks = true;  ///< plane models: later tracks join by transfer
   int min_track_frames = 3;  ///< tracks seen in fewer frames are left out
   /// Filter tuning; defaults differ from the synthetic experiments' in `reference` (Refine:
@@ -70,6 +75,9 @@ struct TrackFilterResult {
   std::vector<double> plane_rms_px;  ///< posterior reprojection RMS per plane over all frames (px)
   std::vector<int> transfer_failed;  ///< later tracks whose transfer failed, per plane
   std::string stopped;               ///< empty when every frame was processed, else why not
+  int passes = 1;                    ///< passes run
+  std::vector<double> pass_focal_px; ///< final focal length of each pass
+  std::vector<std::vector<Eigen::Vector3d>> pass_N;  ///< final planes of each pass
   bool ok() const { return stopped.empty(); }
 };
 
