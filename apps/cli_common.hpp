@@ -32,5 +32,7 @@ const std::string& invocation();
 
 // One registration function per command family (apps/cmd_*.cpp).
 void addExperimentCommands(CLI::App& app, std::vector<Command>& commands);
+void addRenderCommands(CLI::App& app, std::vector<Command>& commands);
+void addEvaluateCommands(CLI::App& app, std::vector<Command>& commands);
 
 }  // namespace rsfm::cli

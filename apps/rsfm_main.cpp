@@ -23,6 +23,8 @@ int main(int argc, char** argv) {
 
   std::vector<Command> commands;
   addExperimentCommands(app, commands);
+  addRenderCommands(app, commands);
+  addEvaluateCommands(app, commands);
 
   // Name an unknown command word explicitly (CLI11 would only say a subcommand is required).
   {
