@@ -28,7 +28,7 @@ void addRenderCommands(CLI::App& app, std::vector<Command>& commands) {
   box->add_option("--width", st->o.width, "image width (px, even)")->capture_default_str();
   box->add_option("--height", st->o.height, "image height (px, even)")->capture_default_str();
   box->add_option("--texture", st->o.texture,
-                  "one image for every face (default: photographs from visp-images-data)");
+                  "an image for every face, or 'procedural' (default: photographs from visp-images-data)");
   box->add_option("--seed", st->o.seed, "seed of the hand-held wobble, the noise and procedural textures")
       ->capture_default_str();
   box->add_option("--noise", st->o.noise_sigma, "sensor noise standard deviation (8-bit grey levels)")

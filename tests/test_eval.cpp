@@ -173,5 +173,22 @@ TEST(PlaneMatching, PermutedEstimatesAndUnmatchedPlanes) {
   EXPECT_NEAR(angleDeg(Eigen::Vector3d::UnitZ(), -Eigen::Vector3d::UnitZ()), 180, 1e-12);
 }
 
+TEST(PlaneMatching, ParallelPlanesAreToldApartByScaledDistance) {
+  // Floor (d = 1.1) and box top (d = 0.4) share a normal. The estimate is at half scale and lists
+  // them in the other order with the normals slightly off in the misleading direction.
+  const Eigen::Vector3d n = Eigen::Vector3d(0, 1, 0.4).normalized();
+  const Eigen::Matrix3d tilt = rot(0.5, {1, 0, 0});
+  const std::vector<Eigen::Vector3d> truth{n, n};
+  const std::vector<double> truth_d{1.1, 0.4};
+  const std::vector<Eigen::Vector3d> est{tilt * n, tilt.transpose() * n};
+  const std::vector<double> est_d{0.2, 0.55};
+  const PlaneMatch m = matchPlanes(truth, truth_d, est, est_d, 2.0);
+  EXPECT_EQ(m.estimate_of_truth, (std::vector<int>{1, 0}));
+  EXPECT_NEAR(m.angle_deg[0], 0.5, 1e-9);
+  // The assignment itself: rows to columns with the least total cost.
+  const auto a = minCostAssignment({{1.0, 2.0}, {2.0, 0.5}});
+  EXPECT_EQ(a, (std::vector<int>{0, 1}));
+}
+
 }  // namespace
 }  // namespace rsfm::eval

@@ -115,20 +115,14 @@ double angleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
   return std::atan2(a.cross(b).norm(), a.dot(b)) * 180.0 / M_PI;
 }
 
-PlaneMatch matchPlanes(const std::vector<Eigen::Vector3d>& truth, const std::vector<Eigen::Vector3d>& est) {
-  const int m = static_cast<int>(truth.size()), k = static_cast<int>(est.size());
-  PlaneMatch pm;
-  pm.estimate_of_truth.assign(m, -1);
-  pm.truth_of_estimate.assign(k, -1);
-  pm.angle_deg.assign(m, std::numeric_limits<double>::quiet_NaN());
-  if (m == 0 || k == 0) return pm;
-  std::vector<std::vector<double>> cost(m, std::vector<double>(k));
-  for (int i = 0; i < m; ++i)
-    for (int j = 0; j < k; ++j) cost[i][j] = angleDeg(truth[i].normalized(), est[j].normalized());
-  const int pairs = std::min(m, k);
+std::vector<int> minCostAssignment(const std::vector<std::vector<double>>& cost) {
+  const int m = static_cast<int>(cost.size());
+  const int k = m > 0 ? static_cast<int>(cost[0].size()) : 0;
   std::vector<int> best(m, -1);
+  if (m == 0 || k == 0) return best;
+  const int pairs = std::min(m, k);
   if (std::max(m, k) <= 9) {
-    // Exhaustive: assign each truth plane an estimate or nothing, with exactly `pairs` matches.
+    // Exhaustive: each row gets a column or nothing, with exactly `pairs` matches.
     std::vector<int> cur(m, -1);
     std::vector<char> used(k, 0);
     double best_cost = std::numeric_limits<double>::infinity();
@@ -150,7 +144,7 @@ PlaneMatch matchPlanes(const std::vector<Eigen::Vector3d>& truth, const std::vec
         used[j] = 0;
         cur[i] = -1;
       }
-      self(self, i + 1, matched, c);  // leave truth plane i unmatched
+      self(self, i + 1, matched, c);  // leave row i unmatched
     };
     rec(rec, 0, 0, 0.0);
   } else {
@@ -165,13 +159,48 @@ PlaneMatch matchPlanes(const std::vector<Eigen::Vector3d>& truth, const std::vec
         used[j] = 1;
       }
   }
+  return best;
+}
+
+namespace {
+PlaneMatch matchWithCost(const std::vector<Eigen::Vector3d>& truth, const std::vector<Eigen::Vector3d>& est,
+                         const std::vector<std::vector<double>>& cost) {
+  const int m = static_cast<int>(truth.size()), k = static_cast<int>(est.size());
+  PlaneMatch pm;
+  pm.estimate_of_truth.assign(m, -1);
+  pm.truth_of_estimate.assign(k, -1);
+  pm.angle_deg.assign(m, std::numeric_limits<double>::quiet_NaN());
+  const std::vector<int> best = minCostAssignment(cost);
   for (int i = 0; i < m; ++i) {
     if (best[i] < 0) continue;
     pm.estimate_of_truth[i] = best[i];
     pm.truth_of_estimate[best[i]] = i;
-    pm.angle_deg[i] = cost[i][best[i]];
+    pm.angle_deg[i] = angleDeg(truth[i].normalized(), est[best[i]].normalized());
   }
   return pm;
+}
+}  // namespace
+
+PlaneMatch matchPlanes(const std::vector<Eigen::Vector3d>& truth, const std::vector<Eigen::Vector3d>& est) {
+  std::vector<std::vector<double>> cost(truth.size(), std::vector<double>(est.size()));
+  for (std::size_t i = 0; i < truth.size(); ++i)
+    for (std::size_t j = 0; j < est.size(); ++j) cost[i][j] = angleDeg(truth[i].normalized(), est[j].normalized());
+  return matchWithCost(truth, est, cost);
+}
+
+PlaneMatch matchPlanes(const std::vector<Eigen::Vector3d>& truth, const std::vector<double>& truth_d,
+                       const std::vector<Eigen::Vector3d>& est, const std::vector<double>& est_d, double scale,
+                       double deg_per_log) {
+  if (truth_d.size() != truth.size() || est_d.size() != est.size())
+    throw std::invalid_argument("matchPlanes: one distance per plane");
+  std::vector<std::vector<double>> cost(truth.size(), std::vector<double>(est.size()));
+  for (std::size_t i = 0; i < truth.size(); ++i)
+    for (std::size_t j = 0; j < est.size(); ++j) {
+      const double r = scale * est_d[j] / truth_d[i];
+      const double log_err = (r > 0 && std::isfinite(r)) ? std::abs(std::log(r)) : 1.0;
+      cost[i][j] = angleDeg(truth[i].normalized(), est[j].normalized()) + deg_per_log * log_err;
+    }
+  return matchWithCost(truth, est, cost);
 }
 
 }  // namespace rsfm::eval

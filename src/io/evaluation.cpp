@@ -114,7 +114,8 @@ Evaluation evaluateDirectories(const fs::path& estimate_dir, const fs::path& tru
                                   est_sum.principal_point_px.x(), est_sum.principal_point_px.y(),
                                   truth_sum.principal_point_px.x(), truth_sum.principal_point_px.y()));
 
-  const eval::PlaneMatch pm = eval::matchPlanes(truth_sum.planes, est_sum.planes);
+  const eval::PlaneMatch pm = eval::matchPlanes(truth_sum.planes, truth_sum.plane_distances, est_sum.planes,
+                                                est_sum.plane_distances, e.ate.alignment.T.s);
   for (std::size_t i = 0; i < truth_sum.planes.size(); ++i) {
     PlaneEvaluation pe;
     pe.name = i < truth_sum.plane_names.size() ? truth_sum.plane_names[i] : fmt::format("plane{}", i);

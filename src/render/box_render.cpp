@@ -7,6 +7,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <map>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -25,6 +26,14 @@ namespace {
 
 constexpr double kDeg = M_PI / 180.0;
 const char* kVispRoot = "/usr/share/visp-images-data/ViSP-images/";
+
+// The photographs' folder: $RSFM_VISP_IMAGES_DIR if set (tests use it to exercise the fallback),
+// else the Debian package's.
+std::string vispRoot() {
+  const char* env = std::getenv("RSFM_VISP_IMAGES_DIR");
+  if (env && *env) return std::string(env) + "/";
+  return kVispRoot;
+}
 
 // Box (world frame: y up, box standing on the floor y = 0, centred on the y axis).
 constexpr double kBoxX = 1.0, kBoxY = 0.7, kBoxZ = 0.8;
@@ -135,9 +144,12 @@ std::string validate(const BoxRenderOptions& o) {
   if (!std::isfinite(o.orbit_deg) || o.orbit_deg < 0 || o.orbit_deg > 80)
     return fmt::format("--orbit-deg must be in [0, 80], got {}", o.orbit_deg);
   if (!std::isfinite(o.fps) || o.fps <= 0 || o.fps > 240) return fmt::format("--fps must be in (0, 240], got {}", o.fps);
-  if (!o.texture.empty()) {
+  if (!o.texture.empty() && o.texture != "procedural") {
     std::error_code ec;
     if (!fs::is_regular_file(o.texture, ec)) return "--texture " + o.texture + ": no such file";
+    const cv::Mat img = cv::imread(o.texture, cv::IMREAD_COLOR);
+    if (img.empty() || img.cols < 16 || img.rows < 16)
+      return "--texture " + o.texture + ": not an image OpenCV can read, or smaller than 16x16 pixels";
   }
   return {};
 }
@@ -248,7 +260,8 @@ BoxScene::BoxScene(const BoxRenderOptions& opt, const std::function<void(const s
       {"box_left", "cube/image.0030.pgm"},
       {"box_back", "AprilTag/AprilTag.pgm"}};
   cv::Mat user;
-  if (!opt.texture.empty()) {
+  const bool procedural = opt.texture == "procedural";
+  if (!opt.texture.empty() && !procedural) {
     user = cv::imread(opt.texture, cv::IMREAD_COLOR);
     if (user.empty() || user.cols < 16 || user.rows < 16)
       throw std::runtime_error("--texture " + opt.texture + ": cannot read an image of at least 16x16 pixels");
@@ -266,8 +279,8 @@ BoxScene::BoxScene(const BoxRenderOptions& opt, const std::function<void(const s
       img = is_floor ? user.clone() : cropToAspect(user, aspect, fx, fy, 0.7);
       source = fs::path(opt.texture).filename().string() + (is_floor ? "" : " (crop)");
     } else {
-      const std::string path = std::string(kVispRoot) + defaults.at(f.name);
-      img = cv::imread(path, cv::IMREAD_COLOR);
+      const std::string path = vispRoot() + defaults.at(f.name);
+      if (!procedural) img = cv::imread(path, cv::IMREAD_COLOR);
       if (!img.empty()) {
         // Drop a 5 % margin: some of the photographs have black borders, which would draw lines
         // on the tiled floor.
@@ -276,7 +289,7 @@ BoxScene::BoxScene(const BoxRenderOptions& opt, const std::function<void(const s
         if (!is_floor) img = cropToAspect(img, aspect, 0.5, 0.5, 1.0);
         source = path;
       } else {
-        if (!fallback_said)
+        if (!fallback_said && !procedural)
           say(fmt::format("render: {} not found (install the Debian package visp-images-data for photographic "
                           "textures); using procedural textures",
                           path));

@@ -81,4 +81,16 @@ struct PlaneMatch {
 /// Normals are compared directly (both must be in the same frame and sign convention).
 PlaneMatch matchPlanes(const std::vector<Eigen::Vector3d>& truth, const std::vector<Eigen::Vector3d>& est);
 
+/// The same with distances as a tie-breaker for parallel planes (a box top and the floor it stands
+/// on): the cost of a pair is `angle_deg + deg_per_log * |ln(scale * d_est / d_truth)|`, `scale`
+/// being the estimate -> truth scale (Sim(3) alignment). `angle_deg` in the result is still the
+/// pure normal angle. Non-positive distances count as a factor-e mismatch.
+PlaneMatch matchPlanes(const std::vector<Eigen::Vector3d>& truth, const std::vector<double>& truth_d,
+                       const std::vector<Eigen::Vector3d>& est, const std::vector<double>& est_d, double scale,
+                       double deg_per_log = 20.0);
+
+/// Least-total-cost one-to-one assignment of rows to columns (min(rows, cols) pairs); returns the
+/// column of each row or -1. Exhaustive when both sides have <= 9 entries, else greedy.
+std::vector<int> minCostAssignment(const std::vector<std::vector<double>>& cost);
+
 }  // namespace rsfm::eval

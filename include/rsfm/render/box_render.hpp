@@ -26,7 +26,10 @@ struct BoxRenderOptions {
   double focal_px = 520;
   int width = 640;
   int height = 480;
-  std::string texture;     ///< one image for every face (each uses a different crop); empty: ViSP photos
+  /// One image for every face (each box face uses a different crop; the floor tiles it whole);
+  /// "procedural": seeded procedural textures; empty: photographs from the Debian package
+  /// visp-images-data (folder overridable by $RSFM_VISP_IMAGES_DIR), procedural when absent.
+  std::string texture;
   std::uint64_t seed = 1;  ///< hand-held wobble phases, sensor noise, procedural textures
   bool floor = true;
   double noise_sigma = 1.5;  ///< sensor noise, grey levels (8-bit)
