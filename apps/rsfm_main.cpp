@@ -25,6 +25,8 @@ int main(int argc, char** argv) {
   addExperimentCommands(app, commands);
   addTrackCommands(app, commands);
   addEstimateCommands(app, commands);
+  addRenderCommands(app, commands);
+  addEvaluateCommands(app, commands);
 
   // Name an unknown command word explicitly (CLI11 would only say a subcommand is required).
   {

@@ -80,6 +80,65 @@ D2="$TMP/o2"
 check "planes: zero trials" 2 "$D2" -- experiment planes --out "$D2" --trials 0
 check "planes: too few points per face" 2 "$D2" -- experiment planes --out "$D2" --points-per-face 2
 
+# render box / evaluate (docs/render.md, docs/evaluate.md).
+R="$TMP/render"
+check "render: one frame" 2 "$R" -- render box --out "$R" --frames 1
+check "render: odd width" 2 "$R" -- render box --out "$R" --width 321
+check "render: NaN focal" 2 "$R" -- render box --out "$R" --focal-px nan
+check "render: missing texture" 2 "$R" -- render box --out "$R" --texture "$TMP/none.png"
+echo "not an image" >"$TMP/bad.png"
+check "render: texture not an image" 2 "$R" -- render box --out "$R" --texture "$TMP/bad.png"
+check "render: unknown option" 2 "$R" -- render box --out "$R" --bogus
+check "render: missing --out" 2 "" -- render box
+check "render: output is a file" 2 "" -- render box --out "$TMP/afile" --frames 3
+if "$RSFM" render box --out "$R" --frames 4 --width 160 --height 120 --focal-px 130 --quiet 2>"$TMP/err.txt" &&
+   [ -s "$R/video.mp4" ] && [ "$(grep -vc '^#' "$R/truth/trajectory.tum")" -eq 4 ] &&
+   grep -q '"format": "rsfm-summary"' "$R/truth/summary.json" && [ -z "$(find "$R" -name "*.tmp*")" ]; then
+  pass=$((pass + 1)); echo "ok   render good run: $(ls "$R" "$R/truth" | tr '\n' ' ')"
+else
+  fail=$((fail + 1)); echo "FAIL render good run: $(cat "$TMP/err.txt"), files: $(ls -R "$R" | tr '\n' ' ')"
+fi
+# Without the photographs: procedural textures, said once on stderr.
+R2="$TMP/render2"
+if RSFM_VISP_IMAGES_DIR="$TMP/no-visp" "$RSFM" render box --out "$R2" --frames 2 --width 160 --height 120 \
+     --focal-px 130 2>"$TMP/err.txt" && [ "$(grep -c 'using procedural textures' "$TMP/err.txt")" -eq 1 ] &&
+   [ -s "$R2/video.mp4" ]; then
+  pass=$((pass + 1)); echo "ok   render fallback: $(grep procedural "$TMP/err.txt")"
+else
+  fail=$((fail + 1)); echo "FAIL render fallback: $(cat "$TMP/err.txt")"
+fi
+T="$R/truth"
+E="$TMP/est"
+mkdir -p "$E"
+cp "$T/summary.json" "$E/"
+V="$TMP/evalout"
+check "evaluate: missing estimate dir" 2 "$V" -- evaluate --estimate "$TMP/nodir" --truth "$T" --out "$V"
+check "evaluate: missing trajectory" 2 "$V" -- evaluate --estimate "$E" --truth "$T" --out "$V"
+printf '0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n2 0 0 zero 0 0 0 1\n' >"$E/trajectory.tum"
+check "evaluate: malformed TUM" 2 "$V" -- evaluate --estimate "$E" --truth "$T" --out "$V"
+grep -q "trajectory.tum:3: field tz ('zero') is not a number" "$TMP/err.txt" ||
+  { fail=$((fail + 1)); echo "FAIL malformed TUM message lacks file:line: $(cat "$TMP/err.txt")"; }
+printf '0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 1.5\n' >"$E/trajectory.tum"
+check "evaluate: non-unit quaternion" 2 "$V" -- evaluate --estimate "$E" --truth "$T" --out "$V"
+printf '0 0 0 0 0 0 0 1\n1 0.1 0 0 0 0 0 1\n7 0 0 0 0 0 0 1\n9 0 0 0 0 0 0 1\n' >"$E/trajectory.tum"
+check "evaluate: too few matched poses" 2 "$V" -- evaluate --estimate "$E" --truth "$T" --out "$V"
+grep -q "only 2 poses share a frame number" "$TMP/err.txt" ||
+  { fail=$((fail + 1)); echo "FAIL too-few message: $(cat "$TMP/err.txt")"; }
+cp "$T/trajectory.tum" "$E/"
+check "evaluate: rpe-delta 0" 2 "$V" -- evaluate --estimate "$E" --truth "$T" --out "$V" --rpe-delta 0
+printf '{"format": "rsfm-summary",\n "version": 1,\n "frames": }\n' >"$E/summary.json"
+check "evaluate: malformed summary" 2 "$V" -- evaluate --estimate "$E" --truth "$T" --out "$V"
+grep -q "summary.json:3: invalid JSON" "$TMP/err.txt" ||
+  { fail=$((fail + 1)); echo "FAIL malformed summary message: $(cat "$TMP/err.txt")"; }
+cp "$T/summary.json" "$E/"
+if "$RSFM" evaluate --estimate "$E" --truth "$T" --out "$V" >"$TMP/out.txt" 2>"$TMP/err.txt" &&
+   grep -q "4 matched by frame number" "$TMP/out.txt" && [ -s "$V/evaluation.json" ] && [ -s "$V/evaluation.md" ] &&
+   grep -q '"format": "rsfm-evaluation"' "$V/evaluation.json" && ! ls "$V" | grep -q tmp; then
+  pass=$((pass + 1)); echo "ok   evaluate good run: $(ls "$V" | tr '\n' ' ')"
+else
+  fail=$((fail + 1)); echo "FAIL evaluate good run: $(cat "$TMP/err.txt") $(ls "$V" 2>&1 | tr '\n' ' ')"
+fi
+
 # --help succeeds.
 if "$RSFM" experiment table1 --help >/dev/null 2>&1; then pass=$((pass + 1)); echo "ok   --help"; else fail=$((fail + 1)); echo "FAIL --help"; fi
 echo "$pass passed, $fail failed"

@@ -8,6 +8,7 @@
 #include "rsfm/camera.hpp"
 #include "rsfm/geometry.hpp"
 #include "rsfm/io/report.hpp"
+#include "rsfm/io/tum.hpp"
 #include "rsfm/rotation.hpp"
 
 namespace rsfm::io {
@@ -101,15 +102,16 @@ void writeEstimateReport(const EstimateReport& r, const std::filesystem::path& d
                          bool plots) {
   const TrackFilterResult& res = *r.result;
   // trajectory.tum
-  std::string tum = "# rsfm trajectory: t(frame) tx ty tz qx qy qz qw; camera pose in the reference camera frame\n";
+  std::vector<TumPose> poses;
   for (const auto& f : res.frames) {
-    Eigen::Vector3d p;
-    Eigen::Quaterniond q;
-    poseOf(f, &p, &q);
-    tum += fmt::format("{} {:.9g} {:.9g} {:.9g} {:.9g} {:.9g} {:.9g} {:.9g}\n", f.frame, p.x(), p.y(), p.z(), q.x(), q.y(),
-                       q.z(), q.w());
+    TumPose tp;
+    tp.t = f.frame;
+    poseOf(f, &tp.p, &tp.q);
+    poses.push_back(tp);
   }
-  const auto tum_tmp = files->write(dir / "trajectory.tum", tum);
+  std::ostringstream tum;
+  writeTum(tum, poses);
+  const auto tum_tmp = files->write(dir / "trajectory.tum", tum.str());
   // planes.csv
   std::string pc =
       "frame,plane,nx,ny,nz,normal_sd_deg,distance,distance_sd,beta,beta_sd,focal_px,focal_sd_px,used,gated,rms_px\n";

@@ -1,0 +1,48 @@
+// `rsfm evaluate`: an estimate against the truth (docs/evaluate.md).
+#include <fmt/format.h>
+
+#include <memory>
+#include <string>
+
+#include "cli_common.hpp"
+#include "rsfm/io/atomic_file.hpp"
+#include "rsfm/io/evaluation.hpp"
+
+namespace rsfm::cli {
+
+void addEvaluateCommands(CLI::App& app, std::vector<Command>& commands) {
+  auto* ev = app.add_subcommand(
+      "evaluate", "compare DIR/trajectory.tum and DIR/summary.json of an estimate with the truth (ATE, RPE, "
+                  "plane normals, focal length)");
+  struct EvalCli {
+    std::string estimate, truth, out;
+    rsfm::io::EvaluateOptions o;
+  };
+  auto st = std::make_shared<EvalCli>();
+  ev->add_option("--estimate", st->estimate, "estimate directory (trajectory.tum, summary.json)")->required();
+  ev->add_option("--truth", st->truth, "truth directory (trajectory.tum, summary.json)")->required();
+  ev->add_option("--out", st->out, "output directory for evaluation.json and evaluation.md (default: the estimate's)");
+  ev->add_option("--rpe-delta", st->o.rpe_delta, "RPE frame distance (frames)")->capture_default_str();
+  commands.push_back({ev, [st]() -> int {
+    if (st->o.rpe_delta < 1) return fail(kBadInput, fmt::format("--rpe-delta must be >= 1, got {}", st->o.rpe_delta));
+    rsfm::io::Evaluation e;
+    try {
+      e = rsfm::io::evaluateDirectories(st->estimate, st->truth, st->o);
+    } catch (const rsfm::io::InputError& err) {
+      return fail(kBadInput, err.what());
+    } catch (const std::exception& err) {
+      return fail(kRuntimeFailure, err.what());
+    }
+    const std::string out = st->out.empty() ? st->estimate : st->out;
+    if (auto msg = rsfm::io::ensureWritableDirectory(out); !msg.empty()) return fail(kBadInput, msg);
+    try {
+      rsfm::io::writeEvaluation(e, out, invocation());
+    } catch (const std::exception& err) {
+      return fail(kRuntimeFailure, err.what());
+    }
+    fmt::print("{}", rsfm::io::evaluationTable(e));
+    return 0;
+  }});
+}
+
+}  // namespace rsfm::cli

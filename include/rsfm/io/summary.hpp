@@ -1,0 +1,46 @@
+#pragma once
+// summary.json: the per-sequence summary shared by the renderer's truth and the estimator's
+// output (docs/outputs.md, docs/evaluate.md). Schema (format "rsfm-summary", version 1):
+//   {"format":"rsfm-summary","version":1,"frames":F,"image":{"width":W,"height":H},
+//    "principal_point_px":[cx,cy],"focal_px":f,
+//    "planes":[[nx,ny,nz],...],     unit normals in the reference camera frame (COP-centred,
+//                                   x right, y down, z forward), pointing from the camera towards
+//                                   the plane: n.X = d with d > 0
+//    "plane_distances":[d,...],     trajectory units
+//    "plane_tracks":[...], "plane_reprojection_rms_px":[...],   estimates only (optional)
+//    "plane_names":[...], "scene_size": s}                      truth only (optional)
+// Pixel coordinates follow OpenCV: integer values at pixel centres, (0,0) = top-left pixel.
+// "focal_px" may be null (unknown). Unknown keys are kept out of the struct but allowed.
+#include <Eigen/Core>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "rsfm/io/input_error.hpp"
+
+namespace rsfm::io {
+
+struct Summary {
+  int frames = 0;
+  int width = 0;
+  int height = 0;
+  Eigen::Vector2d principal_point_px = Eigen::Vector2d::Zero();
+  std::optional<double> focal_px;
+  std::vector<Eigen::Vector3d> planes;          ///< unit normals, reference camera frame
+  std::vector<double> plane_distances;          ///< same order as planes
+  std::vector<int> plane_tracks;                ///< estimates: tracks per plane (may be empty)
+  std::vector<double> plane_reprojection_rms_px;///< estimates (may be empty)
+  std::vector<std::string> plane_names;         ///< truth (may be empty)
+  std::optional<double> scene_size;             ///< truth: scene size in trajectory units
+  std::vector<int> plane_visible_frames;        ///< truth: frames in which each plane is visible (may be empty)
+};
+
+/// Reads and checks a summary.json. Throws InputError ("FILE:LINE: ..." for JSON syntax errors,
+/// "FILE: ..." for a missing or invalid key).
+Summary readSummary(const std::filesystem::path& file);
+
+/// The JSON text (2-space indented, keys in the schema's order; optional parts omitted when empty).
+std::string summaryToJson(const Summary& s);
+
+}  // namespace rsfm::io

@@ -1,0 +1,239 @@
+#include "rsfm/io/evaluation.hpp"
+
+#include <fmt/format.h>
+
+#include <cmath>
+#include <map>
+#include <nlohmann/json.hpp>
+
+#include "rsfm/io/atomic_file.hpp"
+#include "rsfm/io/tum.hpp"
+
+namespace rsfm::io {
+namespace fs = std::filesystem;
+namespace {
+
+std::map<long long, TumPose> byFrame(const fs::path& file, const std::vector<TumPose>& poses) {
+  std::map<long long, TumPose> m;
+  for (const TumPose& p : poses) {
+    const double r = std::round(p.t);
+    if (std::abs(p.t - r) > 1e-9 || std::abs(r) > 1e15)
+      throw InputError(fmt::format("{}: timestamp {} is not a frame number (rsfm TUM files use integer frame indices)",
+                                   file.string(), p.t));
+    m[static_cast<long long>(r)] = p;
+  }
+  return m;
+}
+
+eval::Pose toPose(const TumPose& p) { return {p.p, p.q.normalized().toRotationMatrix()}; }
+
+double rotDeg(const Eigen::Matrix3d& R) {
+  const double c = std::clamp(0.5 * (R.trace() - 1.0), -1.0, 1.0);
+  const Eigen::Vector3d w(R(2, 1) - R(1, 2), R(0, 2) - R(2, 0), R(1, 0) - R(0, 1));
+  return std::atan2(0.5 * w.norm(), c) * 180.0 / M_PI;
+}
+
+template <class J>
+J statsJson(const eval::ErrorStats& s) {
+  return J{{"rmse", s.rmse}, {"mean", s.mean}, {"median", s.median}, {"max", s.max}, {"n", s.n}};
+}
+
+std::string num(double v, int prec = 6) {
+  if (!std::isfinite(v)) return "NA";
+  return fmt::format("{:.{}g}", v, prec);
+}
+
+}  // namespace
+
+Evaluation evaluateDirectories(const fs::path& estimate_dir, const fs::path& truth_dir, const EvaluateOptions& opt) {
+  Evaluation e;
+  e.estimate_dir = estimate_dir;
+  e.truth_dir = truth_dir;
+  e.rpe_delta = opt.rpe_delta;
+  for (const fs::path& d : {estimate_dir, truth_dir}) {
+    std::error_code ec;
+    if (!fs::is_directory(d, ec)) throw InputError(d.string() + ": no such directory");
+  }
+  const fs::path et = estimate_dir / "trajectory.tum", tt = truth_dir / "trajectory.tum";
+  const fs::path es = estimate_dir / "summary.json", ts = truth_dir / "summary.json";
+  const auto est_poses = readTum(et);
+  const auto truth_poses = readTum(tt);
+  const Summary est_sum = readSummary(es);
+  const Summary truth_sum = readSummary(ts);
+  const auto em = byFrame(et, est_poses), tm = byFrame(tt, truth_poses);
+  e.estimate_poses = static_cast<int>(em.size());
+  e.truth_poses = static_cast<int>(tm.size());
+
+  std::vector<eval::Pose> E, T;
+  std::vector<long long> frames;
+  for (const auto& [k, p] : tm) {
+    auto it = em.find(k);
+    if (it == em.end()) continue;
+    T.push_back(toPose(p));
+    E.push_back(toPose(it->second));
+    frames.push_back(k);
+  }
+  e.matched = static_cast<int>(frames.size());
+  if (e.matched < 3)
+    throw InputError(fmt::format("{}: only {} pose{} share a frame number with {} (need at least 3)", et.string(),
+                                 e.matched, e.matched == 1 ? "" : "s", tt.string()));
+  e.ate = eval::absoluteTrajectoryError(E, T, true);
+  if (!e.ate.alignment.ok)
+    throw InputError(fmt::format("{}: cannot align: the estimated camera centres are all equal", et.string()));
+  const auto& sv = e.ate.alignment.singular_values;
+  if (sv(1) < 1e-9 * sv(0))
+    e.notes.push_back("the trajectories are (nearly) collinear: the alignment's rotation about their axis is undetermined");
+  e.alignment_rotation_deg = rotDeg(e.ate.alignment.T.R);
+
+  if (truth_sum.scene_size) {
+    e.scale_ref = *truth_sum.scene_size;
+  } else {
+    Eigen::Vector3d lo = T[0].p, hi = T[0].p;
+    for (const auto& p : T) {
+      lo = lo.cwiseMin(p.p);
+      hi = hi.cwiseMax(p.p);
+    }
+    e.scale_ref = (hi - lo).norm();
+    e.relative_to_scene_size = false;
+    e.notes.push_back(fmt::format("truth summary has no scene_size: relative ATE is relative to the truth trajectory's "
+                                  "extent (bounding-box diagonal {:.6g})", e.scale_ref));
+  }
+  e.rpe = eval::relativePoseError(E, T, frames, opt.rpe_delta, e.ate.alignment.T.s);
+  if (e.rpe.pairs == 0)
+    e.notes.push_back(fmt::format("no matched pose pairs {} frames apart: RPE not computed", opt.rpe_delta));
+
+  e.focal_truth = truth_sum.focal_px;
+  e.focal_est = est_sum.focal_px;
+  if (e.focal_truth && e.focal_est) e.focal_err_pct = 100.0 * (*e.focal_est - *e.focal_truth) / *e.focal_truth;
+  if (!e.focal_est) e.notes.push_back("the estimate has no focal length (focal_px null)");
+  if (est_sum.width != truth_sum.width || est_sum.height != truth_sum.height)
+    e.notes.push_back(fmt::format("image sizes differ: estimate {}x{}, truth {}x{}", est_sum.width, est_sum.height,
+                                  truth_sum.width, truth_sum.height));
+  if ((est_sum.principal_point_px - truth_sum.principal_point_px).norm() > 1e-6)
+    e.notes.push_back(fmt::format("principal points differ: estimate ({}, {}), truth ({}, {})",
+                                  est_sum.principal_point_px.x(), est_sum.principal_point_px.y(),
+                                  truth_sum.principal_point_px.x(), truth_sum.principal_point_px.y()));
+
+  const eval::PlaneMatch pm = eval::matchPlanes(truth_sum.planes, truth_sum.plane_distances, est_sum.planes,
+                                                est_sum.plane_distances, e.ate.alignment.T.s);
+  for (std::size_t i = 0; i < truth_sum.planes.size(); ++i) {
+    PlaneEvaluation pe;
+    pe.name = i < truth_sum.plane_names.size() ? truth_sum.plane_names[i] : fmt::format("plane{}", i);
+    pe.estimate = pm.estimate_of_truth[i];
+    pe.distance_truth = truth_sum.plane_distances[i];
+    if (pe.estimate >= 0) {
+      pe.angle_deg = pm.angle_deg[i];
+      pe.distance_est_scaled = e.ate.alignment.T.s * est_sum.plane_distances[pe.estimate];
+      pe.distance_err_pct = 100.0 * (pe.distance_est_scaled - pe.distance_truth) / pe.distance_truth;
+    }
+    e.planes.push_back(pe);
+  }
+  for (std::size_t j = 0; j < est_sum.planes.size(); ++j)
+    if (pm.truth_of_estimate[j] < 0) e.unmatched_estimates.push_back(static_cast<int>(j));
+  return e;
+}
+
+std::string evaluationJson(const Evaluation& e) {
+  using J = nlohmann::ordered_json;
+  J o;
+  o["format"] = "rsfm-evaluation";
+  o["version"] = 1;
+  o["estimate"] = e.estimate_dir.string();
+  o["truth"] = e.truth_dir.string();
+  o["poses"] = {{"truth", e.truth_poses}, {"estimate", e.estimate_poses}, {"matched", e.matched}};
+  const auto& T = e.ate.alignment.T;
+  J R = J::array();
+  for (int r = 0; r < 3; ++r) R.push_back({T.R(r, 0), T.R(r, 1), T.R(r, 2)});
+  o["alignment"] = {{"type", "sim3"},      {"direction", "estimate->truth"}, {"scale", T.s},
+                    {"rotation_deg", e.alignment_rotation_deg}, {"rotation", R},
+                    {"translation", {T.t.x(), T.t.y(), T.t.z()}}};
+  J ate = statsJson<J>(e.ate.stats);
+  ate["relative_to"] = e.relative_to_scene_size ? "scene_size" : "trajectory_extent";
+  ate["reference_size"] = e.scale_ref;
+  ate["rmse_pct"] = 100.0 * e.ate.stats.rmse / e.scale_ref;
+  ate["mean_pct"] = 100.0 * e.ate.stats.mean / e.scale_ref;
+  ate["median_pct"] = 100.0 * e.ate.stats.median / e.scale_ref;
+  ate["max_pct"] = 100.0 * e.ate.stats.max / e.scale_ref;
+  o["ate"] = ate;
+  o["rpe"] = {{"delta_frames", e.rpe_delta},
+              {"pairs", e.rpe.pairs},
+              {"translation", statsJson<J>(e.rpe.translation)},
+              {"rotation_deg", statsJson<J>(e.rpe.rotation_deg)}};
+  auto opt = [](const std::optional<double>& v) { return v ? J(*v) : J(nullptr); };
+  o["focal"] = {{"truth_px", opt(e.focal_truth)}, {"estimate_px", opt(e.focal_est)}, {"error_pct", opt(e.focal_err_pct)}};
+  J planes = J::array();
+  for (const auto& p : e.planes) {
+    J pj;
+    pj["name"] = p.name;
+    pj["estimate"] = p.estimate >= 0 ? J(p.estimate) : J(nullptr);
+    pj["angle_deg"] = p.estimate >= 0 ? J(p.angle_deg) : J(nullptr);
+    pj["distance_truth"] = p.distance_truth;
+    pj["distance_estimate_scaled"] = p.estimate >= 0 ? J(p.distance_est_scaled) : J(nullptr);
+    pj["distance_error_pct"] = p.estimate >= 0 ? J(p.distance_err_pct) : J(nullptr);
+    planes.push_back(pj);
+  }
+  o["planes"] = planes;
+  o["unmatched_estimated_planes"] = e.unmatched_estimates;
+  o["notes"] = e.notes;
+  return o.dump(2) + "\n";
+}
+
+std::string evaluationTable(const Evaluation& e) {
+  std::string s;
+  s += fmt::format("rsfm evaluate: {} vs truth {}\n", e.estimate_dir.string(), e.truth_dir.string());
+  s += fmt::format("poses: {} truth, {} estimate, {} matched by frame number\n", e.truth_poses, e.estimate_poses,
+                   e.matched);
+  const auto& T = e.ate.alignment.T;
+  s += fmt::format("alignment (Sim(3), estimate -> truth): scale {}, rotation {} deg, translation ({}, {}, {})\n",
+                   num(T.s), num(e.alignment_rotation_deg, 4), num(T.t.x(), 4), num(T.t.y(), 4), num(T.t.z(), 4));
+  s += fmt::format("\n{:<34} {:>12} {:>12} {:>12} {:>12}\n", "metric", "rmse", "mean", "median", "max");
+  auto row = [&](const std::string& name, const eval::ErrorStats& st, double f) {
+    s += fmt::format("{:<34} {:>12} {:>12} {:>12} {:>12}\n", name, num(st.rmse * f), num(st.mean * f),
+                     num(st.median * f), num(st.max * f));
+  };
+  row("ATE (truth units)", e.ate.stats, 1.0);
+  row(fmt::format("ATE (% of {} {})", e.relative_to_scene_size ? "scene size" : "traj. extent", num(e.scale_ref, 4)),
+      e.ate.stats, 100.0 / e.scale_ref);
+  if (e.rpe.pairs > 0) {
+    row(fmt::format("RPE translation ({} fr, {} pairs)", e.rpe_delta, e.rpe.pairs), e.rpe.translation, 1.0);
+    row(fmt::format("RPE rotation, deg ({} fr)", e.rpe_delta), e.rpe.rotation_deg, 1.0);
+  }
+  s += fmt::format("\nfocal length: truth {} px, estimate {} px, error {}\n",
+                   e.focal_truth ? num(*e.focal_truth) : "NA", e.focal_est ? num(*e.focal_est) : "NA",
+                   e.focal_err_pct ? fmt::format("{:+.3f} %", *e.focal_err_pct) : "NA");
+  s += "\nplanes (normals in the reference camera frame, best one-to-one matching):\n";
+  s += fmt::format("{:<16} {:>8} {:>10} {:>10} {:>12} {:>10}\n", "truth plane", "estimate", "angle_deg", "d_truth",
+                   "d_est*scale", "d_err_%");
+  for (const auto& p : e.planes) {
+    if (p.estimate >= 0)
+      s += fmt::format("{:<16} {:>8} {:>10.3f} {:>10} {:>12} {:>+10.2f}\n", p.name, p.estimate, p.angle_deg,
+                       num(p.distance_truth, 5), num(p.distance_est_scaled, 5), p.distance_err_pct);
+    else
+      s += fmt::format("{:<16} {:>8} {:>10} {:>10} {:>12} {:>10}\n", p.name, "none", "NA", num(p.distance_truth, 5),
+                       "NA", "NA");
+  }
+  if (e.planes.empty()) s += "(the truth has no planes)\n";
+  std::string um;
+  for (int j : e.unmatched_estimates) um += (um.empty() ? "" : ", ") + std::to_string(j);
+  s += fmt::format("unmatched estimated planes: {}\n", um.empty() ? "none" : um);
+  for (const auto& n : e.notes) s += "note: " + n + "\n";
+  return s;
+}
+
+std::string evaluationMarkdown(const Evaluation& e, const std::string& invocation) {
+  std::string s = "# rsfm evaluation\n\n";
+  s += "Metrics are defined in docs/evaluate.md. Poses are associated by frame number; the estimate is\n"
+       "aligned to the truth by a Umeyama Sim(3) fit of the camera centres.\n\n```\n";
+  s += evaluationTable(e);
+  s += "```\n\nCommand: `" + invocation + "`\n";
+  return s;
+}
+
+void writeEvaluation(const Evaluation& e, const fs::path& out_dir, const std::string& invocation) {
+  AtomicFileSet files;
+  files.write(out_dir / "evaluation.json", evaluationJson(e));
+  files.write(out_dir / "evaluation.md", evaluationMarkdown(e, invocation));
+  files.commit();
+}
+
+}  // namespace rsfm::io

@@ -1,0 +1,142 @@
+#include "rsfm/io/summary.hpp"
+
+#include <fmt/format.h>
+
+#include <cmath>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+namespace rsfm::io {
+namespace {
+
+using json = nlohmann::json;
+
+[[noreturn]] void bad(const std::filesystem::path& f, const std::string& msg) {
+  throw InputError(f.string() + ": " + msg);
+}
+
+double number(const std::filesystem::path& f, const json& j, const std::string& what) {
+  if (!j.is_number()) bad(f, what + " must be a number");
+  const double v = j.get<double>();
+  if (!std::isfinite(v)) bad(f, what + " must be finite");
+  return v;
+}
+
+int integer(const std::filesystem::path& f, const json& j, const std::string& what) {
+  if (!j.is_number_integer()) bad(f, what + " must be an integer");
+  return j.get<int>();
+}
+
+const json& required(const std::filesystem::path& f, const json& o, const char* key) {
+  if (!o.contains(key)) bad(f, fmt::format("missing key \"{}\"", key));
+  return o.at(key);
+}
+
+}  // namespace
+
+Summary readSummary(const std::filesystem::path& file) {
+  std::ifstream in(file, std::ios::binary);
+  if (!in) throw InputError(file.string() + ": cannot open summary file");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  const std::string text = ss.str();
+  json j;
+  try {
+    j = json::parse(text);
+  } catch (const json::parse_error& e) {
+    int line = 1;
+    for (std::size_t i = 0; i < std::min<std::size_t>(e.byte > 0 ? e.byte - 1 : 0, text.size()); ++i)
+      if (text[i] == '\n') ++line;
+    std::string msg = e.what();
+    if (auto p = msg.find("syntax error"); p != std::string::npos) msg = msg.substr(p);
+    throw InputError(fmt::format("{}:{}: invalid JSON: {}", file.string(), line, msg));
+  }
+  if (!j.is_object()) bad(file, "top level must be a JSON object");
+  Summary s;
+  const json& fmt_ = required(file, j, "format");
+  if (!fmt_.is_string() || fmt_.get<std::string>() != "rsfm-summary") bad(file, "\"format\" must be \"rsfm-summary\"");
+  if (integer(file, required(file, j, "version"), "\"version\"") != 1) bad(file, "unsupported \"version\" (expected 1)");
+  s.frames = integer(file, required(file, j, "frames"), "\"frames\"");
+  if (s.frames <= 0) bad(file, "\"frames\" must be positive");
+  const json& img = required(file, j, "image");
+  if (!img.is_object()) bad(file, "\"image\" must be an object {\"width\":W,\"height\":H}");
+  s.width = integer(file, required(file, img, "width"), "\"image.width\"");
+  s.height = integer(file, required(file, img, "height"), "\"image.height\"");
+  if (s.width <= 0 || s.height <= 0) bad(file, "image width and height must be positive");
+  const json& pp = required(file, j, "principal_point_px");
+  if (!pp.is_array() || pp.size() != 2) bad(file, "\"principal_point_px\" must be [cx, cy]");
+  s.principal_point_px = {number(file, pp[0], "\"principal_point_px\"[0]"), number(file, pp[1], "\"principal_point_px\"[1]")};
+  const json& f = required(file, j, "focal_px");
+  if (!f.is_null()) {
+    s.focal_px = number(file, f, "\"focal_px\"");
+    if (!(*s.focal_px > 0)) bad(file, "\"focal_px\" must be positive (or null)");
+  }
+  if (j.contains("planes")) {
+    const json& pl = j.at("planes");
+    if (!pl.is_array()) bad(file, "\"planes\" must be an array of [nx, ny, nz]");
+    for (std::size_t i = 0; i < pl.size(); ++i) {
+      const std::string what = fmt::format("\"planes\"[{}]", i);
+      if (!pl[i].is_array() || pl[i].size() != 3) bad(file, what + " must be [nx, ny, nz]");
+      Eigen::Vector3d n(number(file, pl[i][0], what), number(file, pl[i][1], what), number(file, pl[i][2], what));
+      if (std::abs(n.norm() - 1.0) > 1e-3) bad(file, fmt::format("{} is not a unit vector (norm {:.6g})", what, n.norm()));
+      s.planes.push_back(n.normalized());
+    }
+  }
+  auto numberArray = [&](const char* key, auto* out, bool ints) {
+    if (!j.contains(key)) return;
+    const json& a = j.at(key);
+    if (!a.is_array()) bad(file, fmt::format("\"{}\" must be an array", key));
+    if (a.size() != s.planes.size())
+      bad(file, fmt::format("\"{}\" has {} entries but \"planes\" has {}", key, a.size(), s.planes.size()));
+    for (std::size_t i = 0; i < a.size(); ++i) {
+      const std::string what = fmt::format("\"{}\"[{}]", key, i);
+      if (ints)
+        out->push_back(static_cast<typename std::remove_reference_t<decltype(*out)>::value_type>(integer(file, a[i], what)));
+      else
+        out->push_back(static_cast<typename std::remove_reference_t<decltype(*out)>::value_type>(number(file, a[i], what)));
+    }
+  };
+  numberArray("plane_distances", &s.plane_distances, false);
+  if (!s.planes.empty() && s.plane_distances.empty()) bad(file, "missing key \"plane_distances\"");
+  for (std::size_t i = 0; i < s.plane_distances.size(); ++i)
+    if (!(s.plane_distances[i] > 0)) bad(file, fmt::format("\"plane_distances\"[{}] must be positive", i));
+  numberArray("plane_tracks", &s.plane_tracks, true);
+  numberArray("plane_reprojection_rms_px", &s.plane_reprojection_rms_px, false);
+  numberArray("plane_visible_frames", &s.plane_visible_frames, true);
+  if (j.contains("plane_names")) {
+    const json& a = j.at("plane_names");
+    if (!a.is_array() || a.size() != s.planes.size())
+      bad(file, "\"plane_names\" must be an array with one name per plane");
+    for (const json& n : a) {
+      if (!n.is_string()) bad(file, "\"plane_names\" entries must be strings");
+      s.plane_names.push_back(n.get<std::string>());
+    }
+  }
+  if (j.contains("scene_size") && !j.at("scene_size").is_null()) {
+    s.scene_size = number(file, j.at("scene_size"), "\"scene_size\"");
+    if (!(*s.scene_size > 0)) bad(file, "\"scene_size\" must be positive");
+  }
+  return s;
+}
+
+std::string summaryToJson(const Summary& s) {
+  nlohmann::ordered_json o;  // keeps the schema's key order
+  o["format"] = "rsfm-summary";
+  o["version"] = 1;
+  o["frames"] = s.frames;
+  o["image"] = {{"width", s.width}, {"height", s.height}};
+  o["principal_point_px"] = {s.principal_point_px.x(), s.principal_point_px.y()};
+  o["focal_px"] = s.focal_px ? nlohmann::ordered_json(*s.focal_px) : nlohmann::ordered_json(nullptr);
+  o["planes"] = nlohmann::ordered_json::array();
+  for (const auto& n : s.planes) o["planes"].push_back({n.x(), n.y(), n.z()});
+  o["plane_distances"] = s.plane_distances;
+  if (!s.plane_tracks.empty()) o["plane_tracks"] = s.plane_tracks;
+  if (!s.plane_reprojection_rms_px.empty()) o["plane_reprojection_rms_px"] = s.plane_reprojection_rms_px;
+  if (!s.plane_names.empty()) o["plane_names"] = s.plane_names;
+  if (!s.plane_visible_frames.empty()) o["plane_visible_frames"] = s.plane_visible_frames;
+  if (s.scene_size) o["scene_size"] = *s.scene_size;
+  return o.dump(2) + "\n";
+}
+
+}  // namespace rsfm::io

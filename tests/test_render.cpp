@@ -1,0 +1,229 @@
+// The rendered box sequence agrees with its written truth: corners tracked by pyramidal
+// Lucas-Kanade in the decoded video move as the truth plane homographies (built from
+// truth/trajectory.tum and truth/summary.json) predict; the video reads back frame for frame.
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
+#include <opencv2/videoio.hpp>
+
+#include "rsfm/io/summary.hpp"
+#include "rsfm/io/tum.hpp"
+#include "rsfm/render/box_render.hpp"
+
+namespace rsfm::render {
+namespace {
+namespace fs = std::filesystem;
+
+BoxRenderOptions smallOptions() {
+  BoxRenderOptions o;
+  o.frames = 20;
+  o.width = 320;
+  o.height = 240;
+  o.focal_px = 260;
+  o.seed = 3;
+  return o;
+}
+
+// Reference pixel -> frame-k pixel for the plane n.X = d (reference camera frame).
+Eigen::Matrix3d planeHomography(const Eigen::Matrix3d& K, const io::TumPose& pose, const Eigen::Vector3d& n, double d) {
+  const Eigen::Matrix3d Rt = pose.q.toRotationMatrix().transpose();
+  return K * Rt * (Eigen::Matrix3d::Identity() - pose.p * n.transpose() / d) * K.inverse();
+}
+
+class RenderedBox : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = fs::temp_directory_path() / ("rsfm_test_render_" + std::to_string(::getpid()));
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    result_ = writeBoxSequence(smallOptions(), dir_);
+  }
+  static void TearDownTestSuite() { fs::remove_all(dir_); }
+  static fs::path dir_;
+  static RenderResult result_;
+};
+fs::path RenderedBox::dir_;
+RenderResult RenderedBox::result_;
+
+TEST_F(RenderedBox, FilesAndTruth) {
+  EXPECT_TRUE(fs::exists(result_.video));
+  const auto poses = io::readTum(dir_ / "truth" / "trajectory.tum");
+  ASSERT_EQ(poses.size(), 20u);
+  EXPECT_EQ(poses[0].p.norm(), 0.0);
+  EXPECT_NEAR(poses[0].q.w(), 1.0, 1e-15);
+  EXPECT_EQ(poses[19].t, 19.0);
+  const io::Summary s = io::readSummary(dir_ / "truth" / "summary.json");
+  EXPECT_EQ(s.frames, 20);
+  EXPECT_EQ(s.width, 320);
+  EXPECT_EQ(*s.focal_px, 260.0);
+  EXPECT_EQ(s.principal_point_px, Eigen::Vector2d(159.5, 119.5));
+  ASSERT_GE(s.planes.size(), 4u);  // floor + front, right, top
+  EXPECT_EQ(s.plane_names[0], "floor");
+  for (std::size_t i = 0; i < s.planes.size(); ++i) {
+    EXPECT_GT(s.plane_distances[i], 0);
+    EXPECT_NEAR(s.planes[i].norm(), 1.0, 1e-12);
+  }
+  // The box faces are at right angles to each other and the floor is parallel to the top.
+  auto idx = [&](const std::string& n) {
+    return static_cast<int>(std::find(s.plane_names.begin(), s.plane_names.end(), n) - s.plane_names.begin());
+  };
+  EXPECT_NEAR(s.planes[idx("box_front")].dot(s.planes[idx("box_right")]), 0.0, 1e-12);
+  EXPECT_NEAR(s.planes[idx("box_front")].dot(s.planes[idx("box_top")]), 0.0, 1e-12);
+  // The floor and the top are parallel, both seen from above: same normal (pointing away from the
+  // camera), and the floor is farther by the box height 0.7.
+  EXPECT_NEAR(s.planes[idx("floor")].dot(s.planes[idx("box_top")]), 1.0, 1e-12);
+  EXPECT_NEAR(s.plane_distances[idx("floor")] - s.plane_distances[idx("box_top")], 0.7, 1e-12);
+}
+
+TEST_F(RenderedBox, VideoReadsBack) {
+  cv::VideoCapture cap(result_.video.string());
+  ASSERT_TRUE(cap.isOpened());
+  int n = 0;
+  cv::Mat f;
+  while (cap.read(f)) {
+    EXPECT_EQ(f.cols, 320);
+    EXPECT_EQ(f.rows, 240);
+    ++n;
+  }
+  EXPECT_EQ(n, 20);
+}
+
+// Median distance between LK-tracked corners (frame 0 -> k, corners well inside each truth plane
+// by `labels`) and their truth-homography prediction; also the number of tracks and of planes
+// with >= 5 tracks.
+struct TrackCheck {
+  double median = 1e9;
+  std::size_t tracks = 0;
+  int planes = 0;
+};
+TrackCheck trackAgainstTruth(const cv::Mat& g0, const cv::Mat& gk, const cv::Mat& labels, const io::Summary& s,
+                             const io::TumPose& pose) {
+  Eigen::Matrix3d K;
+  K << *s.focal_px, 0, s.principal_point_px.x(), 0, *s.focal_px, s.principal_point_px.y(), 0, 0, 1;
+  std::vector<double> err;
+  TrackCheck r;
+  for (std::size_t p = 0; p < s.planes.size(); ++p) {
+    cv::Mat mask = labels == static_cast<int>(p + 1);
+    cv::erode(mask, mask, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(13, 13)));
+    std::vector<cv::Point2f> c0, c1;
+    cv::goodFeaturesToTrack(g0, c0, 60, 0.01, 5, mask);
+    if (c0.empty()) continue;
+    std::vector<uchar> st;
+    std::vector<float> e;
+    cv::calcOpticalFlowPyrLK(g0, gk, c0, c1, st, e, cv::Size(21, 21), 3,
+                             cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 50, 1e-3));
+    const Eigen::Matrix3d H = planeHomography(K, pose, s.planes[p], s.plane_distances[p]);
+    int n = 0;
+    for (std::size_t i = 0; i < c0.size(); ++i) {
+      if (!st[i]) continue;
+      const Eigen::Vector3d x = H * Eigen::Vector3d(c0[i].x, c0[i].y, 1);
+      const double px = x.x() / x.z(), py = x.y() / x.z();
+      if (px < 12 || py < 12 || px > g0.cols - 12 || py > g0.rows - 12) continue;
+      err.push_back(std::hypot(px - c1[i].x, py - c1[i].y));
+      ++n;
+    }
+    r.planes += n >= 5;
+  }
+  r.tracks = err.size();
+  if (!err.empty()) {
+    std::nth_element(err.begin(), err.begin() + err.size() / 2, err.end());
+    r.median = err[err.size() / 2];
+  }
+  return r;
+}
+
+TEST(BoxRender, RenderedFramesEqualTheExactPlaneWarp) {
+  // The geometry alone (no noise, no video coding): corners tracked from frame 0 into rendered
+  // frame k and into frame 0 warped by the truth homography of their plane land at the same
+  // place. (Tracking error of Lucas-Kanade's translation model on foreshortened planes is the
+  // same in both and cancels; it is what the video test's 0.3 px tolerance is for.)
+  BoxRenderOptions o = smallOptions();
+  o.noise_sigma = 0;
+  BoxScene scene(o);
+  const io::Summary s = scene.truth();
+  Eigen::Matrix3d K;
+  K << *s.focal_px, 0, s.principal_point_px.x(), 0, *s.focal_px, s.principal_point_px.y(), 0, 0, 1;
+  cv::Mat labels, g0, gk;
+  cv::cvtColor(scene.render(0, &labels), g0, cv::COLOR_BGR2GRAY);
+  const cv::TermCriteria term(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 50, 1e-3);
+  for (int k : {1, 2}) {
+    cv::cvtColor(scene.render(k), gk, cv::COLOR_BGR2GRAY);
+    std::vector<double> diff;
+    for (std::size_t p = 0; p < s.planes.size(); ++p) {
+      cv::Mat mask = labels == static_cast<int>(p + 1);
+      cv::erode(mask, mask, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(13, 13)));
+      std::vector<cv::Point2f> c0, c1, c2;
+      cv::goodFeaturesToTrack(g0, c0, 60, 0.01, 5, mask);
+      if (c0.empty()) continue;
+      const Eigen::Matrix3d H = planeHomography(K, scene.pose(k), s.planes[p], s.plane_distances[p]);
+      cv::Matx33d Hc;
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) Hc(i, j) = H(i, j);
+      cv::Mat warped;
+      cv::warpPerspective(g0, warped, Hc, g0.size(), cv::INTER_CUBIC);
+      std::vector<uchar> st1, st2;
+      std::vector<float> e;
+      cv::calcOpticalFlowPyrLK(g0, gk, c0, c1, st1, e, cv::Size(21, 21), 3, term);
+      cv::calcOpticalFlowPyrLK(g0, warped, c0, c2, st2, e, cv::Size(21, 21), 3, term);
+      for (std::size_t i = 0; i < c0.size(); ++i) {
+        const cv::Point2f& q = c2[i];
+        if (st1[i] && st2[i] && q.x > 12 && q.y > 12 && q.x < g0.cols - 12 && q.y < g0.rows - 12)
+          diff.push_back(cv::norm(c1[i] - c2[i]));
+      }
+    }
+    ASSERT_GE(diff.size(), 40u);
+    std::nth_element(diff.begin(), diff.begin() + diff.size() / 2, diff.end());
+    const double median = diff[diff.size() / 2];
+    std::printf("frame 0 -> %d: %zu tracks, median |rendered - exact warp| %.3f px\n", k, diff.size(), median);
+    EXPECT_LT(median, 0.05);
+  }
+}
+
+TEST_F(RenderedBox, TrackedCornersFollowTheTruthPlaneHomographies) {
+  // Frames decoded from the video; poses and planes read back from the truth files.
+  const auto poses = io::readTum(dir_ / "truth" / "trajectory.tum");
+  const io::Summary s = io::readSummary(dir_ / "truth" / "summary.json");
+  std::vector<cv::Mat> grey;
+  {
+    cv::VideoCapture cap(result_.video.string());
+    cv::Mat f, g;
+    while (cap.read(f)) {
+      cv::cvtColor(f, g, cv::COLOR_BGR2GRAY);
+      grey.push_back(g.clone());
+    }
+  }
+  ASSERT_EQ(grey.size(), 20u);
+  // Plane labels of frame 0 from the scene itself (corners are taken well inside a plane).
+  BoxScene scene(smallOptions());
+  cv::Mat labels;
+  scene.render(0, &labels);
+  const TrackCheck t = trackAgainstTruth(grey[0], grey[1], labels, s, poses[1]);
+  std::printf("video frame 0 -> 1: %zu tracks on %d planes, median error %.3f px\n", t.tracks, t.planes, t.median);
+  EXPECT_GE(t.tracks, 40u);
+  EXPECT_GE(t.planes, 3);
+  EXPECT_LT(t.median, 0.3);
+}
+
+TEST(BoxRender, ValidateRejectsBadOptions) {
+  BoxRenderOptions o = smallOptions();
+  EXPECT_TRUE(validate(o).empty());
+  o.frames = 1;
+  EXPECT_FALSE(validate(o).empty());
+  o = smallOptions();
+  o.width = 321;
+  EXPECT_FALSE(validate(o).empty());
+  o = smallOptions();
+  o.focal_px = std::nan("");
+  EXPECT_FALSE(validate(o).empty());
+  o = smallOptions();
+  o.texture = "/nonexistent/texture.png";
+  EXPECT_FALSE(validate(o).empty());
+}
+
+}  // namespace
+}  // namespace rsfm::render
