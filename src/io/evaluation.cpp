@@ -198,8 +198,8 @@ std::string evaluationTable(const Evaluation& e) {
     row(fmt::format("RPE translation ({} fr, {} pairs)", e.rpe_delta, e.rpe.pairs), e.rpe.translation, 1.0);
     row(fmt::format("RPE rotation, deg ({} fr)", e.rpe_delta), e.rpe.rotation_deg, 1.0);
   }
-  s += fmt::format("\nfocal length: truth {} px, estimate {} px, error {}\n",
-                   e.focal_truth ? num(*e.focal_truth) : "NA", e.focal_est ? num(*e.focal_est) : "NA",
+  s += fmt::format("\nfocal length: truth {}, estimate {}, error {}\n",
+                   e.focal_truth ? num(*e.focal_truth) + " px" : "NA", e.focal_est ? num(*e.focal_est) + " px" : "NA",
                    e.focal_err_pct ? fmt::format("{:+.3f} %", *e.focal_err_pct) : "NA");
   s += "\nplanes (normals in the reference camera frame, best one-to-one matching):\n";
   s += fmt::format("{:<16} {:>8} {:>10} {:>10} {:>12} {:>10}\n", "truth plane", "estimate", "angle_deg", "d_truth",
