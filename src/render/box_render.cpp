@@ -609,9 +609,12 @@ RenderResult writeBoxSequence(const BoxRenderOptions& o, const fs::path& out_dir
   if (n != o.frames)
     throw std::runtime_error(fmt::format("{} reads back with {} frames instead of {}", video_final.string(), n, o.frames));
   if (!first_read.empty() && first_read.size() == first_rendered.size()) {
-    const double psnr = cv::PSNR(first_read, first_rendered);
-    say(fmt::format("render: video reads back with {} frames; frame 0 PSNR {:.1f} dB against the rendered image", n,
-                    psnr));
+    cv::Mat ga, gb;
+    cv::cvtColor(first_read, ga, cv::COLOR_BGR2GRAY);
+    cv::cvtColor(first_rendered, gb, cv::COLOR_BGR2GRAY);
+    say(fmt::format("render: video reads back with {} frames; frame 0 PSNR against the rendered image {:.1f} dB "
+                    "(BGR), {:.1f} dB (grey)",
+                    n, cv::PSNR(first_read, first_rendered), cv::PSNR(ga, gb)));
   }
   std::vector<io::TumPose> poses;
   for (int k = 0; k < o.frames; ++k) poses.push_back(scene.pose(k));
