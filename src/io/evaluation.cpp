@@ -207,7 +207,8 @@ std::string evaluationTable(const Evaluation& e) {
   for (const auto& p : e.planes) {
     if (p.estimate >= 0)
       s += fmt::format("{:<16} {:>8} {:>10.3f} {:>10} {:>12} {:>+10.2f}\n", p.name, p.estimate, p.angle_deg,
-                       num(p.distance_truth, 5), num(p.distance_est_scaled, 5), p.distance_err_pct);
+                       num(p.distance_truth, 5), num(p.distance_est_scaled, 5),
+                       std::abs(p.distance_err_pct) < 5e-3 ? 0.0 : p.distance_err_pct);  // no "-0.00"
     else
       s += fmt::format("{:<16} {:>8} {:>10} {:>10} {:>12} {:>10}\n", p.name, "none", "NA", num(p.distance_truth, 5),
                        "NA", "NA");
