@@ -198,8 +198,8 @@ std::string evaluationTable(const Evaluation& e) {
     row(fmt::format("RPE translation ({} fr, {} pairs)", e.rpe_delta, e.rpe.pairs), e.rpe.translation, 1.0);
     row(fmt::format("RPE rotation, deg ({} fr)", e.rpe_delta), e.rpe.rotation_deg, 1.0);
   }
-  s += fmt::format("\nfocal length: truth {} px, estimate {} px, error {}\n",
-                   e.focal_truth ? num(*e.focal_truth) : "NA", e.focal_est ? num(*e.focal_est) : "NA",
+  s += fmt::format("\nfocal length: truth {}, estimate {}, error {}\n",
+                   e.focal_truth ? num(*e.focal_truth) + " px" : "NA", e.focal_est ? num(*e.focal_est) + " px" : "NA",
                    e.focal_err_pct ? fmt::format("{:+.3f} %", *e.focal_err_pct) : "NA");
   s += "\nplanes (normals in the reference camera frame, best one-to-one matching):\n";
   s += fmt::format("{:<16} {:>8} {:>10} {:>10} {:>12} {:>10}\n", "truth plane", "estimate", "angle_deg", "d_truth",
@@ -207,7 +207,8 @@ std::string evaluationTable(const Evaluation& e) {
   for (const auto& p : e.planes) {
     if (p.estimate >= 0)
       s += fmt::format("{:<16} {:>8} {:>10.3f} {:>10} {:>12} {:>+10.2f}\n", p.name, p.estimate, p.angle_deg,
-                       num(p.distance_truth, 5), num(p.distance_est_scaled, 5), p.distance_err_pct);
+                       num(p.distance_truth, 5), num(p.distance_est_scaled, 5),
+                       std::abs(p.distance_err_pct) < 5e-3 ? 0.0 : p.distance_err_pct);  // no "-0.00"
     else
       s += fmt::format("{:<16} {:>8} {:>10} {:>10} {:>12} {:>10}\n", p.name, "none", "NA", num(p.distance_truth, 5),
                        "NA", "NA");

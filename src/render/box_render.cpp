@@ -122,6 +122,46 @@ std::vector<Vector3d> clipNear(const std::vector<Vector3d>& poly) {
   return out;
 }
 
+// Sets the pixels of `img` whose centres (integer coordinates) lie inside the convex polygon
+// `pts` (given in img's coordinates) to `value`. (cv::fillConvexPoly includes every pixel within
+// half a pixel of the outline, which would grow each face by half a supersampled pixel.)
+void fillConvexExact(cv::Mat& img, const std::vector<cv::Point2d>& pts, const cv::Scalar& value) {
+  const std::size_t n = pts.size();
+  if (n < 3) return;
+  double area2 = 0;
+  for (std::size_t i = 0; i < n; ++i) area2 += pts[i].cross(pts[(i + 1) % n]);
+  if (area2 == 0) return;
+  const double sgn = area2 > 0 ? 1.0 : -1.0;
+  double ymin = pts[0].y, ymax = pts[0].y;
+  for (const auto& p : pts) {
+    ymin = std::min(ymin, p.y);
+    ymax = std::max(ymax, p.y);
+  }
+  const int y0 = std::max(0, static_cast<int>(std::ceil(ymin))), y1 = std::min(img.rows - 1, static_cast<int>(std::floor(ymax)));
+  for (int y = y0; y <= y1; ++y) {
+    double lo = -1e300, hi = 1e300;
+    bool empty = false;
+    for (std::size_t i = 0; i < n && !empty; ++i) {
+      // Inside: cross(b - a, p - a) has the polygon's orientation sign.
+      const cv::Point2d& a = pts[i];
+      const cv::Point2d& b = pts[(i + 1) % n];
+      const double ex = b.x - a.x, ey = b.y - a.y;
+      // sgn * (ex (y - a.y) - ey (x - a.x)) >= 0
+      const double k = -sgn * ey, c0 = sgn * (ex * (y - a.y) + ey * a.x);
+      if (k > 0)
+        lo = std::max(lo, -c0 / k);
+      else if (k < 0)
+        hi = std::min(hi, -c0 / k);
+      else if (c0 < 0)
+        empty = true;
+    }
+    if (empty) continue;
+    const int x0 = static_cast<int>(std::max(0.0, std::ceil(std::max(lo, -1.0))));
+    const int x1 = static_cast<int>(std::min(static_cast<double>(img.cols - 1), std::floor(std::min(hi, 1e9))));
+    if (x1 >= x0) img.row(y).colRange(x0, x1 + 1).setTo(value);
+  }
+}
+
 cv::Matx33d toCv(const Matrix3d& m) {
   cv::Matx33d r;
   for (int i = 0; i < 3; ++i)
@@ -379,6 +419,20 @@ cv::Matx33d BoxScene::K() const { return impl_->K(1); }
 
 io::Summary BoxScene::truth() const { return impl_->truth; }
 
+std::vector<BoxScene::FacePolygon> BoxScene::faces() const {
+  const Impl& s = *impl_;
+  std::vector<FacePolygon> r;
+  for (const Face& f : s.faces) {
+    FacePolygon p;
+    p.name = f.name;
+    p.truth_index = f.truth_index;
+    const std::array<Vector3d, 4> w{f.P0, f.P0 + f.Eu, f.P0 + f.Eu + f.Ev, f.P0 + f.Ev};
+    for (int i = 0; i < 4; ++i) p.corners[i] = s.Rwc[0].transpose() * (w[i] - s.C[0]);
+    r.push_back(p);
+  }
+  return r;
+}
+
 std::vector<std::string> BoxScene::textureSources() const {
   std::vector<std::string> r;
   for (const Face& f : impl_->faces) r.push_back(f.name + ": " + impl_->textures[f.texture].source);
@@ -404,14 +458,6 @@ cv::Mat BoxScene::render(int k, cv::Mat* labels) const {
     labels->create(s.o.height, s.o.width, CV_8U);
     labels->setTo(0);
   }
-  constexpr int kShift = 4;
-  auto fixedPts = [&](const std::vector<cv::Point2d>& pts, cv::Point2d offset) {
-    std::vector<cv::Point> q;
-    for (const auto& p : pts)
-      q.emplace_back(static_cast<int>(std::lround((p.x - offset.x) * (1 << kShift))),
-                     static_cast<int>(std::lround((p.y - offset.y) * (1 << kShift))));
-    return q;
-  };
   for (const Face& f : s.faces) {
     if (!s.frontFacing(f, k)) continue;
     const cv::Matx33d H0 = s.textureHomography(f, k);
@@ -448,14 +494,15 @@ cv::Mat BoxScene::render(int k, cv::Mat* labels) const {
       cv::Mat warped;
       cv::warpPerspective(tex.pyr[level], warped, Hl, roi.size(), cv::INTER_LINEAR, f.border);
       cv::Mat mask(roi.size(), CV_8U, cv::Scalar(0));
-      cv::fillConvexPoly(mask, fixedPts(pts, cv::Point2d(roi.x, roi.y)), cv::Scalar(255), cv::LINE_8, kShift);
+      std::vector<cv::Point2d> local;
+      for (const auto& p : pts) local.emplace_back(p.x - roi.x, p.y - roi.y);
+      fillConvexExact(mask, local, cv::Scalar(255));
       warped.convertTo(warped, CV_8UC3, f.shade);
       warped.copyTo(hi(roi), mask);
       if (labels) {
         const auto lp = s.project(cell, k, 1);
         if (lp.size() >= 3)
-          cv::fillConvexPoly(*labels, fixedPts(lp, cv::Point2d(0, 0)),
-                             cv::Scalar(f.truth_index >= 0 ? f.truth_index + 1 : 255), cv::LINE_8, kShift);
+          fillConvexExact(*labels, lp, cv::Scalar(f.truth_index >= 0 ? f.truth_index + 1 : 255));
       }
     }
   }
@@ -562,9 +609,12 @@ RenderResult writeBoxSequence(const BoxRenderOptions& o, const fs::path& out_dir
   if (n != o.frames)
     throw std::runtime_error(fmt::format("{} reads back with {} frames instead of {}", video_final.string(), n, o.frames));
   if (!first_read.empty() && first_read.size() == first_rendered.size()) {
-    const double psnr = cv::PSNR(first_read, first_rendered);
-    say(fmt::format("render: video reads back with {} frames; frame 0 PSNR {:.1f} dB against the rendered image", n,
-                    psnr));
+    cv::Mat ga, gb;
+    cv::cvtColor(first_read, ga, cv::COLOR_BGR2GRAY);
+    cv::cvtColor(first_rendered, gb, cv::COLOR_BGR2GRAY);
+    say(fmt::format("render: video reads back with {} frames; frame 0 PSNR against the rendered image {:.1f} dB "
+                    "(BGR), {:.1f} dB (grey)",
+                    n, cv::PSNR(first_read, first_rendered), cv::PSNR(ga, gb)));
   }
   std::vector<io::TumPose> poses;
   for (int k = 0; k < o.frames; ++k) poses.push_back(scene.pose(k));

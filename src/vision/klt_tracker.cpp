@@ -28,12 +28,72 @@ void KltTracker::detect(const cv::Mat& gray, bool first) {
   }
   for (const auto& t : cur_)
     cv::circle(mask, cv::Point(cvRound(t.px.x()), cvRound(t.px.y())), cvRound(o_.min_distance_px), cv::Scalar(0), -1);
+  // Bucketed detection: the quality level is relative to the best corner of each grid cell, so
+  // weakly textured regions (a face in shadow, a low-contrast print) still get corners, and each
+  // cell gets at most its share of the budget.
   std::vector<cv::Point2f> corners;
-  cv::goodFeaturesToTrack(gray, corners, want, o_.quality, o_.min_distance_px, mask, o_.block_size);
+  const int gx = std::max(1, o_.grid_cols), gy = std::max(1, o_.grid_rows);
+  const int per_cell = std::max(1, (o_.max_tracks + gx * gy - 1) / (gx * gy));
+  std::vector<int> live(gx * gy, 0);
+  auto cellOf = [&](double x, double y) {
+    const int cx = std::clamp(static_cast<int>(x * gx / gray.cols), 0, gx - 1);
+    const int cy = std::clamp(static_cast<int>(y * gy / gray.rows), 0, gy - 1);
+    return cy * gx + cx;
+  };
+  for (const auto& t : cur_) ++live[cellOf(t.px.x(), t.px.y())];
+  for (int cy = 0; cy < gy; ++cy)
+    for (int cx = 0; cx < gx; ++cx) {
+      const int room = per_cell - live[cy * gx + cx];
+      if (room <= 0) continue;
+      const cv::Rect r(cx * gray.cols / gx, cy * gray.rows / gy, (cx + 1) * gray.cols / gx - cx * gray.cols / gx,
+                       (cy + 1) * gray.rows / gy - cy * gray.rows / gy);
+      if (cv::countNonZero(mask(r)) == 0) continue;
+      std::vector<cv::Point2f> c;
+      cv::goodFeaturesToTrack(gray(r), c, room, o_.quality, o_.min_distance_px, mask(r), o_.block_size);
+      for (auto& p : c) corners.emplace_back(p.x + r.x, p.y + r.y);
+    }
   if (corners.empty()) return;
   cv::cornerSubPix(gray, corners, cv::Size(5, 5), cv::Size(-1, -1),
                    cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 20, 0.01));
-  for (const auto& c : corners) cur_.push_back({next_id_++, Eigen::Vector2d(c.x, c.y)});
+  for (const auto& c : corners) {
+    cur_.push_back({next_id_++, Eigen::Vector2d(c.x, c.y)});
+    birth_frame_.push_back(static_cast<int>(frames_.size()));
+    birth_px_.push_back(c);
+  }
+}
+
+void KltTracker::anchor(const std::vector<cv::Mat>& pyr, std::vector<TrackPoint>* tracks) {
+  const cv::Size win(o_.window_px, o_.window_px);
+  const cv::TermCriteria term(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 20, 0.01);
+  std::map<int, std::vector<size_t>> groups;  // birth frame -> indices into tracks
+  for (size_t i = 0; i < tracks->size(); ++i) groups[birth_frame_[(*tracks)[i].id]].push_back(i);
+  std::vector<char> keep(tracks->size(), 1);
+  for (const auto& [b, idx] : groups) {
+    auto it = anchor_pyr_.find(b);
+    if (it == anchor_pyr_.end()) continue;  // born in this very frame: nothing to anchor to
+    std::vector<cv::Point2f> p0, p1;
+    for (size_t i : idx) {
+      p0.push_back(birth_px_[(*tracks)[i].id]);
+      p1.emplace_back(static_cast<float>((*tracks)[i].px.x()), static_cast<float>((*tracks)[i].px.y()));
+    }
+    const std::vector<cv::Point2f> guess = p1;
+    std::vector<uchar> st;
+    std::vector<float> err;
+    cv::calcOpticalFlowPyrLK(it->second, pyr, p0, p1, st, err, win, o_.anchor_levels, term,
+                             cv::OPTFLOW_USE_INITIAL_FLOW, o_.min_eig);
+    for (size_t j = 0; j < idx.size(); ++j) {
+      const double moved = std::hypot(p1[j].x - guess[j].x, p1[j].y - guess[j].y);
+      if (!st[j] || !(moved <= o_.anchor_max_px)) {
+        keep[idx[j]] = 0;
+        continue;
+      }
+      (*tracks)[idx[j]].px = Eigen::Vector2d(p1[j].x, p1[j].y);
+    }
+  }
+  std::vector<TrackPoint> out;
+  for (size_t i = 0; i < tracks->size(); ++i)
+    if (keep[i]) out.push_back((*tracks)[i]);
+  tracks->swap(out);
 }
 
 void KltTracker::process(const cv::Mat& frame) {
@@ -73,11 +133,24 @@ void KltTracker::process(const cv::Mat& frame) {
       if (p1[i].x < b || p1[i].y < b || p1[i].x > gray.cols - 1 - b || p1[i].y > gray.rows - 1 - b) continue;
       next.push_back({cur_[i].id, Eigen::Vector2d(p1[i].x, p1[i].y)});
     }
+    if (o_.anchor && !next.empty()) anchor(pyr, &next);
     cur_.swap(next);
     if (static_cast<double>(cur_.size()) < o_.redetect_below * o_.max_tracks) detect(gray, false);
   }
   std::sort(cur_.begin(), cur_.end(), [](const TrackPoint& a, const TrackPoint& c) { return a.id < c.id; });
+  const int k = static_cast<int>(frames_.size());
   frames_.push_back(cur_);
+  if (o_.anchor) {
+    // Keep the pyramids of the frames that live tracks were born in.
+    bool born_here = false;
+    for (const auto& t : cur_) born_here |= birth_frame_[t.id] == k;
+    if (born_here) anchor_pyr_[k] = pyr;
+    for (auto it = anchor_pyr_.begin(); it != anchor_pyr_.end();) {
+      bool used = false;
+      for (const auto& t : cur_) used |= birth_frame_[t.id] == it->first;
+      it = used ? std::next(it) : anchor_pyr_.erase(it);
+    }
+  }
   prev_pyr_ = std::move(pyr);
 }
 

@@ -8,6 +8,8 @@
 // Truth: camera poses in the reference (frame 0) camera frame (rsfm::io::TumPose convention) and
 // the visible planes' normals and distances in that frame (rsfm::io::Summary).
 // Uses OpenCV: lives in rsfm_render, never in rsfm_core.
+#include <Eigen/Core>
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <functional>
@@ -59,6 +61,15 @@ class BoxScene {
   /// Frame k, 8-bit BGR, width x height. With `labels`, a CV_8U image: 0 background, i + 1 for
   /// pixels of truth plane i (same order as truth().planes), 255 for a face not in the truth.
   cv::Mat render(int k, cv::Mat* labels = nullptr) const;
+  /// Every textured face (floor first, then the box's front, right, top, left, back): name,
+  /// truth plane index (-1 when never visible) and the four corners in the reference camera frame,
+  /// in texture order (top-left, top-right, bottom-right, bottom-left of its picture).
+  struct FacePolygon {
+    std::string name;
+    int truth_index = -1;
+    std::array<Eigen::Vector3d, 4> corners;
+  };
+  std::vector<FacePolygon> faces() const;
   /// Where each face's texture came from ("Klimt.png", "procedural", ...), in face order.
   std::vector<std::string> textureSources() const;
 

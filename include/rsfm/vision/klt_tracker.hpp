@@ -4,6 +4,7 @@
 // an optional region of interest in the first frame.
 #include <opencv2/core.hpp>
 
+#include <map>
 #include <vector>
 
 #include "rsfm/track/tracks.hpp"
@@ -12,7 +13,8 @@ namespace rsfm::vision {
 
 struct TrackerOptions {
   int max_tracks = 400;             ///< corners kept alive at most
-  double quality = 0.01;            ///< Shi-Tomasi quality level (fraction of the best corner)
+  double quality = 0.01;            ///< Shi-Tomasi quality level (fraction of the best corner of a cell)
+  int grid_cols = 8, grid_rows = 6; ///< detection grid: each cell gets max_tracks / cells corners at most
   double min_distance_px = 8.0;     ///< minimum distance between corners (px)
   int block_size = 7;               ///< Shi-Tomasi block (px)
   int window_px = 21;               ///< Lucas-Kanade window side (px)
@@ -21,6 +23,14 @@ struct TrackerOptions {
   double min_eig = 1e-4;            ///< LK minimum eigenvalue threshold (cv::OPTFLOW_LK_GET_MIN_EIGENVALS)
   double redetect_below = 0.7;      ///< re-detect when fewer than this fraction of max_tracks live
   int border_px = 10;               ///< tracks closer than this to the border end
+  /// Anchored tracking: after each frame-to-frame step every track is re-aligned by Lucas-Kanade
+  /// against its own first appearance (the frame it was detected in, finest `anchor_levels` + 1
+  /// levels), which removes the random-walk drift of chained frame-to-frame steps. A track whose
+  /// anchored position moves more than anchor_max_px from the frame-to-frame one, or whose
+  /// anchored match fails, ends.
+  bool anchor = true;
+  int anchor_levels = 1;
+  double anchor_max_px = 2.0;
   /// Region of interest: polygon in the first frame's pixels (empty: the whole image). Later
   /// re-detections stay inside the convex hull of the live tracks that started in it.
   std::vector<cv::Point2f> roi;
@@ -38,10 +48,14 @@ class KltTracker {
 
  private:
   void detect(const cv::Mat& gray, bool first);
+  void anchor(const std::vector<cv::Mat>& pyr, std::vector<TrackPoint>* tracks);
   TrackerOptions o_;
   std::vector<cv::Mat> prev_pyr_;
   cv::Mat prev_gray_;
   std::vector<TrackPoint> cur_;
+  std::vector<int> birth_frame_;              // per track id
+  std::vector<cv::Point2f> birth_px_;         // per track id
+  std::map<int, std::vector<cv::Mat>> anchor_pyr_;  // pyramids of frames with live tracks born there
   std::vector<std::vector<TrackPoint>> frames_;
   int next_id_ = 0;
   cv::Size size_;
