@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <chrono>
+#include <cmath>
 #include <memory>
 #include <sstream>
 
@@ -13,6 +14,7 @@
 #include "rsfm/pipeline/track_filter.hpp"
 #include "rsfm/vision/overlay.hpp"
 #include "rsfm/vision/plane_finder.hpp"
+#include "rsfm/vision/plane_init.hpp"
 #include "track_options.hpp"
 
 namespace rsfm::cli {
@@ -29,6 +31,8 @@ struct EstimateCli {
   double gate = 0.999;
   int iterations = 1;
   bool plots = true;
+  bool init = true;
+  double normal_sd0 = -1.0, beta_sd0 = -1.0;  // < 0: automatic
   bool quiet = false;
   std::string out = "out";
 };
@@ -39,7 +43,11 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--focal0-px", e->filter.focal0_px, "initial focal guess in px (0: max(width, height))")
       ->capture_default_str();
   a->add_option("--sigma-px", e->filter.sigma_px, "tracking noise sd (px)")->capture_default_str();
-  a->add_option("--q-trans", e->q_trans, "process variance of t per frame")->capture_default_str();
+  a->add_option("--q-trans-rel", e->filter.q_trans_rel,
+                 "plane models: per-frame translation sd relative to the main plane's depth")
+      ->capture_default_str();
+  a->add_option("--q-trans", e->q_trans, "process variance of t per frame (point model; plane models with --q-trans-rel 0)")
+      ->capture_default_str();
   a->add_option("--q-omega", e->q_omega, "process variance of omega per frame")->capture_default_str();
   a->add_option("--q-beta", e->q_beta, "process variance of beta per frame")->capture_default_str();
   a->add_option("--reference", e->reference, "reference positions: exact | inflate | refine")->capture_default_str();
@@ -55,6 +63,12 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
                 "manual planes: one polygon per plane in first-frame px, x,y,x,y,...;x,y,... (skips RANSAC)");
   a->add_flag("!--keep-static", e->finder.reject_static, "keep planes that do not move in the image");
   a->add_flag("!--no-plots", e->plots, "skip the PNG/SVG plots");
+  a->add_flag("!--no-init", e->init, "start every plane frontal at the default focal guess (no homography start)");
+  a->add_option("--max-tracks-per-plane", e->filter.max_tracks_per_plane, "tracks per plane in the filter at a time (0: all)")->capture_default_str();
+  a->add_option("--normal-sd0", e->filter.normal_sd0, "initial sd of each plane's N components relative to N_Z0")->capture_default_str();
+  a->add_option("--beta-sd0", e->filter.beta_sd0, "initial sd of beta relative to beta0")->capture_default_str();
+  a->add_option("--depth0", e->filter.depth0, "start: planes frontal at this many (initial) focal lengths (scale gauge)")->capture_default_str();
+  a->add_flag("!--no-new-tracks", e->filter.add_new_tracks, "only tracks of the reference frame enter the plane models");
   a->add_option("--out", e->out, "output directory")->capture_default_str();
   a->add_flag("--quiet", e->quiet, "no progress on stderr");
 }
@@ -67,6 +81,8 @@ std::string finishEstimateOptions(EstimateCli* e) {
   e->filter.filter.reference = rm;
   if (!(e->filter.focal_px >= 0) || !(e->filter.focal0_px >= 0)) return "--focal-px and --focal0-px must be >= 0";
   if (!(e->filter.sigma_px > 0)) return "--sigma-px must be positive";
+  if (e->normal_sd0 == 0 || !std::isfinite(e->normal_sd0)) return "--normal-sd0 must be positive";
+  if (e->beta_sd0 < 0 && e->beta_sd0 != -1.0) return "--beta-sd0 must be >= 0";
   if (!(e->q_trans >= 0) || !(e->q_omega >= 0) || !(e->q_beta >= 0)) return "process variances must be >= 0";
   if (!(e->gate >= 0 && e->gate < 1)) return "--gate must be in [0, 1)";
   if (e->iterations < 1) return "--iterations must be >= 1";
@@ -113,9 +129,34 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
                  c.same_motion_fraction >= 0 ? fmt::format(", same-motion {:.2f}", c.same_motion_fraction) : "");
     fmt::print(stderr, "; outliers {}\n", pf.count(-1));
   }
+  TrackFilterOptions fopt = e.filter;
+  vision::PlaneStart start;
+  if (e.init && fopt.model != TrackModel::Point) {
+    start = vision::planeStart(tracks, pf, fopt.focal_px);
+    if (start.ok) {
+      if (fopt.focal_px <= 0 && fopt.focal0_px <= 0) fopt.focal0_px = start.focal_px;
+      fopt.normal_sd0 = 0.1;
+      fopt.beta_sd0 = 0.1;
+      const int m = fopt.model == TrackModel::Plane ? 1 : static_cast<int>(start.normals.size());
+      fopt.initial_normals.assign(start.normals.begin(), start.normals.begin() + m);
+      fopt.initial_distance_ratios.assign(start.distance_ratios.begin(), start.distance_ratios.begin() + m);
+    }
+    if (!e.quiet) {
+      if (start.ok) {
+        fmt::print(stderr, "start: focal {:.0f} px from the homographies (disagreement {:.2f} deg), normals", start.focal_px,
+                   start.score);
+        for (const auto& n : start.normals) fmt::print(stderr, " ({:.2f}, {:.2f}, {:.2f})", n.x(), n.y(), n.z());
+        fmt::print(stderr, "\n");
+      } else {
+        fmt::print(stderr, "start: {}; planes start frontal\n", start.note);
+      }
+    }
+  }
+  if (e.normal_sd0 > 0) fopt.normal_sd0 = e.normal_sd0;
+  if (e.beta_sd0 >= 0) fopt.beta_sd0 = e.beta_sd0;
   TrackFilterResult res;
   try {
-    res = runTrackFilter(tracks, pf.labels, e.filter, e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
+    res = runTrackFilter(tracks, pf.labels, fopt, e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
   } catch (const std::invalid_argument& ex) {
     return fail(kBadInput, ex.what());
   } catch (const std::exception& ex) {
@@ -133,6 +174,8 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
   for (const auto& c : pf.candidates)
     cands.push_back({{"verdict", vision::toString(c.verdict)}, {"label", c.label}, {"tracks", c.members.size()},
                      {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction}});
+  if (start.ok)
+    rep.extra["start"] = {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}};
   rep.extra["plane_finding"] = {{"pair_frame", tracks.first_frame + pf.pair_frame}, {"candidates", cands},
                                 {"manual", !e.finder.rois.empty()}};
   try {

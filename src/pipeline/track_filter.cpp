@@ -75,7 +75,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
   if (tracks.image.width <= 0 || tracks.image.height <= 0) throw std::invalid_argument("tracks: no image size");
   if (static_cast<int>(labels.size()) < tracks.idBound())
     throw std::invalid_argument("labels: fewer labels than tracks");
-  if (!(o.sigma_px > 0) || !(o.beta_sd0 >= 0) || !(o.normal_sd0 > 0) || !std::isfinite(o.focal_px))
+  if (!(o.sigma_px > 0) || !(o.beta_sd0 >= 0) || !(o.normal_sd0 > 0) || !std::isfinite(o.focal_px) || !(o.depth0 > 0))
     throw std::invalid_argument("estimate: options out of range (sigma, beta sd, normal sd, focal)");
   TrackFilterResult res;
   const double s = o.scale_px > 0 ? o.scale_px : std::max(tracks.image.width, tracks.image.height) / 2.0;
@@ -171,18 +171,51 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
   }
   std::vector<int> ref_count(m, 0);
   std::vector<int> ids;
-  for (const auto& p : tracks.frames[0])
-    if (usable(p.id, m)) {
-      ids.push_back(p.id);
-      ++ref_count[labels[p.id]];
-    }
+  {
+    // At most max_tracks_per_plane reference tracks per plane: the longest-lived ones.
+    std::vector<int> cand;
+    for (const auto& p : tracks.frames[0])
+      if (usable(p.id, m)) cand.push_back(p.id);
+    std::stable_sort(cand.begin(), cand.end(), [&](int a, int b) { return spans[a].length() > spans[b].length(); });
+    for (int id : cand)
+      if (o.max_tracks_per_plane <= 0 || ref_count[labels[id]] < o.max_tracks_per_plane) {
+        ids.push_back(id);
+        ++ref_count[labels[id]];
+      }
+    std::sort(ids.begin(), ids.end());
+  }
   for (int j = 0; j < m; ++j)
     if (ref_count[j] < PlaneModel::kMinPoints)
       throw std::invalid_argument("plane " + std::to_string(j) + ": " + std::to_string(ref_count[j]) +
                                   " tracks in the reference frame, the plane model needs at least 5");
   if (o.passes < 1) throw std::invalid_argument("estimate: passes must be >= 1");
   double beta_start = beta0;
-  std::vector<Eigen::Vector3d> N_start(m, Eigen::Vector3d(0.0, 0.0, 1.0));
+  // Scale gauge: the main plane meets the optical axis depth0 / beta0 beyond the image-plane
+  // origin (N_Z = beta0 / depth0), so that every plane in view lies well beyond the A&P origin
+  // (which sits 1/beta from the centre of projection) and starts as a frontal plane there.
+  const double nz0 = beta0 / o.depth0;
+  if (o.q_trans_rel > 0) {
+    const double sd = o.q_trans_rel * o.depth0 / beta0;
+    fo.q_motion[0] = fo.q_motion[1] = sd * sd;
+    fo.q_motion[2] = sd * sd * beta0 * beta0;
+  }
+  std::vector<Eigen::Vector3d> N_start(m, Eigen::Vector3d(0.0, 0.0, nz0));
+  if (!o.initial_normals.empty()) {
+    if (static_cast<int>(o.initial_normals.size()) != m || o.initial_distance_ratios.size() != o.initial_normals.size())
+      throw std::invalid_argument("estimate: initial normals/distances do not match the number of planes");
+    // Plane 0: n_0 . Y = d_0 (COP-centred) with N_0Z = nz0: N_0 = n_0 / (d_0 - n_0Z / beta0).
+    const Eigen::Vector3d n0 = o.initial_normals[0].normalized();
+    if (n0.z() > 0.05) {
+      const double d0 = n0.z() / nz0 + n0.z() / beta0;
+      for (int j = 0; j < m; ++j) {
+        const Eigen::Vector3d nj = o.initial_normals[j].normalized();
+        const double dj = d0 * o.initial_distance_ratios[j];
+        const double den = dj - nj.z() / beta0;
+        if (std::abs(den) > 1e-9 && std::isfinite(den)) N_start[j] = nj / den;
+      }
+      N_start[0].z() = nz0;
+    }
+  }
   for (int pass = 1; pass <= o.passes; ++pass) {
     res.frames.clear();
     res.stopped.clear();
@@ -198,12 +231,12 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(n, n);
     std::vector<bool> fixed(n, false);
     x0[idx::kBeta] = beta_start;
-    P0(idx::kBeta, idx::kBeta) = known_focal ? 0.0 : std::pow(o.beta_sd0 * beta0, 2);
+    P0(idx::kBeta, idx::kBeta) = known_focal ? 0.0 : std::pow(o.beta_sd0 * beta_start, 2);
     fixed[idx::kBeta] = known_focal;
-    const double v = o.normal_sd0 * o.normal_sd0;
     for (int j = 0; j < m; ++j) {
       const int b = PlaneModel::planeIndex(j);
       x0.segment<3>(b) = N_start[j];
+      const double v = std::pow(o.normal_sd0 * std::max(N_start[j].norm(), nz0), 2);
       P0(b, b) = P0(b + 1, b + 1) = v;
       P0(b + 2, b + 2) = j == 0 ? 0.0 : v;
     }
@@ -257,9 +290,14 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       res.frames.push_back(tf);
       // Tracks born in this frame join their plane, transferred to the reference frame.
       if (o.add_new_tracks) {
+        std::vector<int> live(m, 0);  // points of each plane observed in this frame
+        for (const auto& p : tracks.frames[k])
+          if (pidx[p.id] >= 0) ++live[labels[p.id]];
         for (const auto& p : tracks.frames[k]) {
           if (spans[p.id].first != k || !usable(p.id, m)) continue;
           const int j = labels[p.id];
+          if (o.max_tracks_per_plane > 0 && live[j] >= o.max_tracks_per_plane) continue;
+          ++live[j];
           Eigen::Vector2d uv_ref;
           const MeasureStatus st = PlaneModel::transferToReference(tf.N[j], tf.beta, tf.R, tf.t, uvOf(p.px), &uv_ref);
           if (st != MeasureStatus::Ok) {

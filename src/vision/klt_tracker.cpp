@@ -56,43 +56,40 @@ void KltTracker::detect(const cv::Mat& gray, bool first) {
   cv::cornerSubPix(gray, corners, cv::Size(5, 5), cv::Size(-1, -1),
                    cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 20, 0.01));
   for (const auto& c : corners) {
-    cur_.push_back({next_id_++, Eigen::Vector2d(c.x, c.y)});
-    birth_frame_.push_back(static_cast<int>(frames_.size()));
-    birth_px_.push_back(c);
+    const Eigen::Vector2d px(c.x, c.y);
+    if (o_.anchor) {
+      Anchor a;
+      if (!a.tmpl.init(cur_float_, px, o_.affine)) continue;  // textureless or at the border
+      anchors_[next_id_] = std::move(a);
+    }
+    cur_.push_back({next_id_++, px});
   }
 }
 
-void KltTracker::anchor(const std::vector<cv::Mat>& pyr, std::vector<TrackPoint>* tracks) {
-  const cv::Size win(o_.window_px, o_.window_px);
-  const cv::TermCriteria term(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 20, 0.01);
-  std::map<int, std::vector<size_t>> groups;  // birth frame -> indices into tracks
-  for (size_t i = 0; i < tracks->size(); ++i) groups[birth_frame_[(*tracks)[i].id]].push_back(i);
-  std::vector<char> keep(tracks->size(), 1);
-  for (const auto& [b, idx] : groups) {
-    auto it = anchor_pyr_.find(b);
-    if (it == anchor_pyr_.end()) continue;  // born in this very frame: nothing to anchor to
-    std::vector<cv::Point2f> p0, p1;
-    for (size_t i : idx) {
-      p0.push_back(birth_px_[(*tracks)[i].id]);
-      p1.emplace_back(static_cast<float>((*tracks)[i].px.x()), static_cast<float>((*tracks)[i].px.y()));
-    }
-    const std::vector<cv::Point2f> guess = p1;
-    std::vector<uchar> st;
-    std::vector<float> err;
-    cv::calcOpticalFlowPyrLK(it->second, pyr, p0, p1, st, err, win, o_.anchor_levels, term,
-                             cv::OPTFLOW_USE_INITIAL_FLOW, o_.min_eig);
-    for (size_t j = 0; j < idx.size(); ++j) {
-      const double moved = std::hypot(p1[j].x - guess[j].x, p1[j].y - guess[j].y);
-      if (!st[j] || !(moved <= o_.anchor_max_px)) {
-        keep[idx[j]] = 0;
-        continue;
-      }
-      (*tracks)[idx[j]].px = Eigen::Vector2d(p1[j].x, p1[j].y);
-    }
-  }
+void KltTracker::anchor(std::vector<TrackPoint>* tracks) {
   std::vector<TrackPoint> out;
-  for (size_t i = 0; i < tracks->size(); ++i)
-    if (keep[i]) out.push_back((*tracks)[i]);
+  out.reserve(tracks->size());
+  for (auto& t : *tracks) {
+    auto it = anchors_.find(t.id);
+    if (it == anchors_.end()) continue;
+    Eigen::Matrix2d A = it->second.A;
+    Eigen::Vector2d b = t.px;
+    double rms = 0.0;
+    if (it->second.tmpl.align(cur_float_, &A, &b, &rms) && (b - t.px).norm() <= o_.anchor_max_px) {
+      it->second.A = A;
+      t.px = b;
+      out.push_back(t);
+      continue;
+    }
+    // The first appearance no longer matches (lighting, occlusion edge, strong deformation):
+    // re-anchor the track on its frame-to-frame position in this frame, or end it when that
+    // patch has no texture.
+    Anchor fresh;
+    if (!fresh.tmpl.init(cur_float_, t.px, o_.affine)) continue;
+    it->second = std::move(fresh);
+    ++reanchored_;
+    out.push_back(t);
+  }
   tracks->swap(out);
 }
 
@@ -107,6 +104,7 @@ void KltTracker::process(const cv::Mat& frame) {
     gray = g8;
   }
   const cv::Size win(o_.window_px, o_.window_px);
+  if (o_.anchor) gray.convertTo(cur_float_, CV_32F);
   std::vector<cv::Mat> pyr;
   cv::buildOpticalFlowPyramid(gray, pyr, win, o_.pyramid_levels);
   if (frames_.empty()) {
@@ -133,22 +131,20 @@ void KltTracker::process(const cv::Mat& frame) {
       if (p1[i].x < b || p1[i].y < b || p1[i].x > gray.cols - 1 - b || p1[i].y > gray.rows - 1 - b) continue;
       next.push_back({cur_[i].id, Eigen::Vector2d(p1[i].x, p1[i].y)});
     }
-    if (o_.anchor && !next.empty()) anchor(pyr, &next);
+    if (o_.anchor && !next.empty()) anchor(&next);
     cur_.swap(next);
     if (static_cast<double>(cur_.size()) < o_.redetect_below * o_.max_tracks) detect(gray, false);
   }
   std::sort(cur_.begin(), cur_.end(), [](const TrackPoint& a, const TrackPoint& c) { return a.id < c.id; });
-  const int k = static_cast<int>(frames_.size());
   frames_.push_back(cur_);
-  if (o_.anchor) {
-    // Keep the pyramids of the frames that live tracks were born in.
-    bool born_here = false;
-    for (const auto& t : cur_) born_here |= birth_frame_[t.id] == k;
-    if (born_here) anchor_pyr_[k] = pyr;
-    for (auto it = anchor_pyr_.begin(); it != anchor_pyr_.end();) {
-      bool used = false;
-      for (const auto& t : cur_) used |= birth_frame_[t.id] == it->first;
-      it = used ? std::next(it) : anchor_pyr_.erase(it);
+  if (o_.anchor) {  // forget the templates of tracks that ended
+    for (auto it = anchors_.begin(); it != anchors_.end();) {
+      const bool live = std::binary_search(cur_.begin(), cur_.end(), it->first,
+                                           [](const auto& a, const auto& b) {
+                                             if constexpr (std::is_same_v<std::decay_t<decltype(a)>, int>) return a < b.id;
+                                             else return a.id < b;
+                                           });
+      it = live ? std::next(it) : anchors_.erase(it);
     }
   }
   prev_pyr_ = std::move(pyr);

@@ -8,8 +8,8 @@
 // contributing; tracks that start later join the plane models with a reference position
 // transferred through the current plane and motion estimate (PlaneModel::transferToReference);
 // each point's innovation is chi-square gated (FilterOptions::update.gate_probability).
-// Scale gauge: N_Z of plane 0 is fixed at its initial value 1 (the main plane meets the optical
-// axis one unit in front of the image plane), so translations are in units of that distance.
+// Scale gauge: N_Z of plane 0 is fixed at its initial value beta0 / depth0 (the main plane meets
+// the optical axis depth0 / beta0 beyond the image plane), so translations are in those units.
 #include <Eigen/Core>
 
 #include <cstdint>
@@ -32,8 +32,24 @@ struct TrackFilterOptions {
   double focal_px = 0.0;     ///< known focal length (px): beta fixed at s / focal_px (<= 0: estimated)
   double focal0_px = 0.0;    ///< initial focal guess (px) (<= 0: max(width, height), ~53 deg across)
   double beta_sd0 = 0.3;     ///< initial standard deviation of beta, relative to beta0
-  double sigma_px = 1.0;     ///< tracking noise standard deviation (px)
-  double normal_sd0 = 1.0;   ///< initial sd of N_X, N_Y (and of N_Z of planes > 0), N_Z0 = 1
+  double sigma_px = 0.5;     ///< tracking noise standard deviation (px)
+  double normal_sd0 = 1.0;   ///< initial sd of N_X, N_Y (and of N_Z of planes > 0), relative to N_Z0
+  /// Scale gauge and start: every plane starts frontal, meeting the optical axis depth0 / beta0
+  /// beyond the image plane (N = (0, 0, beta0 / depth0)); plane 0's N_Z stays fixed there.
+  double depth0 = 10.0;
+  /// Optional start for the plane models (e.g. from homography decompositions,
+  /// vision/plane_init.hpp): unit normal n_j of each plane in the reference camera frame and its
+  /// distance relative to plane 0's (d_j / d_0). Plane 0 is placed where the gauge puts it (its
+  /// axis depth depth0 / beta0), the others at their relative distances:
+  /// N_j = n_j / (d_j - n_jZ / beta0) (docs/conventions.md). Empty: every plane frontal.
+  /// Plane models: per-frame translation process noise as a standard deviation relative to the
+  /// main plane's starting depth (depth0 / beta0): q = (q_trans_rel depth)^2 for t_X, t_Y and
+  /// (q_trans_rel depth beta0)^2 for t_Z beta. The filter's units follow the gauge, so an absolute
+  /// Q would mean different motions for different depth0; Q must cover one frame's motion
+  /// (docs/filter.md). <= 0: use filter.q_motion as given.
+  double q_trans_rel = 0.01;
+  std::vector<Eigen::Vector3d> initial_normals;
+  std::vector<double> initial_distance_ratios;
   double depth_sd0 = 1.0;    ///< point model: initial sd of each depth alpha (alpha0 = 1)
   int max_point_tracks = 60; ///< point model: reference tracks used at most (O(N^3) per frame)
   /// Passes over the sequence (plane models). Pass p > 1 restarts from the reference frame with
@@ -42,6 +58,11 @@ struct TrackFilterOptions {
   /// (docs/estimate.md). 1 = purely recursive.
   int passes = 2;
   bool add_new_tracks = true;  ///< plane models: later tracks join by transfer
+  /// Plane models: at most this many tracks per plane in the filter at a time (the longest-lived
+  /// reference tracks; later tracks join while a plane has fewer live ones). <= 0: all. Beyond a
+  /// few dozen well-spread points a plane gains little accuracy, while every extra point adds
+  /// to the overconfidence of updates linearized at a poor early estimate (docs/estimate.md).
+  int max_tracks_per_plane = 40;
   int min_track_frames = 3;  ///< tracks seen in fewer frames are left out
   /// Filter tuning; defaults differ from the synthetic experiments' in `reference` (Refine:
   /// real first-frame positions are noisy) and in Q (real hand-held motion).

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "rsfm/track/tracks.hpp"
+#include "rsfm/vision/affine_lk.hpp"
 
 namespace rsfm::vision {
 
@@ -23,13 +24,14 @@ struct TrackerOptions {
   double min_eig = 1e-4;            ///< LK minimum eigenvalue threshold (cv::OPTFLOW_LK_GET_MIN_EIGENVALS)
   double redetect_below = 0.7;      ///< re-detect when fewer than this fraction of max_tracks live
   int border_px = 10;               ///< tracks closer than this to the border end
-  /// Anchored tracking: after each frame-to-frame step every track is re-aligned by Lucas-Kanade
-  /// against its own first appearance (the frame it was detected in, finest `anchor_levels` + 1
-  /// levels), which removes the random-walk drift of chained frame-to-frame steps. A track whose
-  /// anchored position moves more than anchor_max_px from the frame-to-frame one, or whose
-  /// anchored match fails, ends.
+  /// Anchored tracking: after each frame-to-frame step every track is re-aligned to its own
+  /// first appearance by inverse-compositional affine Lucas-Kanade (affine_lk.hpp), which removes
+  /// the drift of chained frame-to-frame translations under perspective change. When the
+  /// alignment fails (residual, degenerate warp) or lands more than anchor_max_px from the
+  /// frame-to-frame position, the track is re-anchored on its current appearance (drift then
+  /// only accumulates over re-anchorings).
   bool anchor = true;
-  int anchor_levels = 1;
+  AffineLkOptions affine;
   double anchor_max_px = 2.0;
   /// Region of interest: polygon in the first frame's pixels (empty: the whole image). Later
   /// re-detections stay inside the convex hull of the live tracks that started in it.
@@ -45,17 +47,23 @@ class KltTracker {
   Tracks tracks(int first_frame = 0) const;
   /// Live tracks in the last frame (id, position).
   const std::vector<TrackPoint>& live() const { return cur_; }
+  /// Times a track was re-anchored because its first appearance no longer matched.
+  long reanchored() const { return reanchored_; }
 
  private:
   void detect(const cv::Mat& gray, bool first);
-  void anchor(const std::vector<cv::Mat>& pyr, std::vector<TrackPoint>* tracks);
+  void anchor(std::vector<TrackPoint>* tracks);
   TrackerOptions o_;
   std::vector<cv::Mat> prev_pyr_;
   cv::Mat prev_gray_;
   std::vector<TrackPoint> cur_;
-  std::vector<int> birth_frame_;              // per track id
-  std::vector<cv::Point2f> birth_px_;         // per track id
-  std::map<int, std::vector<cv::Mat>> anchor_pyr_;  // pyramids of frames with live tracks born there
+  struct Anchor {
+    AffineTemplate tmpl;
+    Eigen::Matrix2d A = Eigen::Matrix2d::Identity();
+  };
+  std::map<int, Anchor> anchors_;  // live tracks' templates (anchor = true)
+  cv::Mat cur_float_;              // current frame as CV_32F
+  long reanchored_ = 0;
   std::vector<std::vector<TrackPoint>> frames_;
   int next_id_ = 0;
   cv::Size size_;

@@ -1,0 +1,29 @@
+#pragma once
+// A start for the plane filters from the plane finder's homographies (docs/estimate.md): for each
+// focal length on a grid, every plane's reference -> frame-k homography is decomposed
+// (cv::decomposeHomographyMat); the focal length whose decompositions agree best - one rotation
+// for all planes (they move rigidly), the same normal at two frames - is kept, with the normals
+// and the relative plane distances (d_j / d_0 from |t / d_j|) of that decomposition.
+#include <Eigen/Core>
+
+#include <string>
+#include <vector>
+
+#include "rsfm/track/tracks.hpp"
+#include "rsfm/vision/plane_finder.hpp"
+
+namespace rsfm::vision {
+
+struct PlaneStart {
+  bool ok = false;
+  double focal_px = 0.0;                     ///< best focal length on the grid (0 if not ok)
+  std::vector<Eigen::Vector3d> normals;      ///< per accepted plane (label order), reference camera frame
+  std::vector<double> distance_ratios;       ///< d_j / d_0
+  double score = 0.0;                        ///< disagreement at the best focal length (deg)
+  std::string note;                          ///< why not ok
+};
+
+/// `focal_px` > 0: only that focal length is tried (known focal length).
+PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& finding, double focal_px = 0.0);
+
+}  // namespace rsfm::vision

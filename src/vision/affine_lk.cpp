@@ -1,0 +1,123 @@
+#include "rsfm/vision/affine_lk.hpp"
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <cmath>
+
+namespace rsfm::vision {
+
+namespace {
+
+/// Bilinear sample of a CV_32F image; false outside.
+inline bool sample(const cv::Mat& img, double x, double y, float* v) {
+  if (!(x >= 0.0 && y >= 0.0 && x < img.cols - 1 && y < img.rows - 1)) return false;
+  const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+  const float ax = static_cast<float>(x - x0), ay = static_cast<float>(y - y0);
+  const float* r0 = img.ptr<float>(y0) + x0;
+  const float* r1 = img.ptr<float>(y0 + 1) + x0;
+  *v = (1 - ay) * ((1 - ax) * r0[0] + ax * r0[1]) + ay * ((1 - ax) * r1[0] + ax * r1[1]);
+  return true;
+}
+
+}  // namespace
+
+bool AffineTemplate::init(const cv::Mat& img, const Eigen::Vector2d& c, const AffineLkOptions& o) {
+  o_ = o;
+  n_ = 0;
+  const int r = o.radius, side = 2 * r + 1, n = side * side;
+  const double sw = o.window_sigma > 0 ? o.window_sigma : r / 1.5;
+  // Sample a (side + 2)^2 patch so that central-difference gradients exist on the template.
+  const int big = side + 2;
+  Eigen::MatrixXf P(big, big);
+  for (int i = 0; i < big; ++i)
+    for (int j = 0; j < big; ++j) {
+      float v;
+      if (!sample(img, c.x() + j - r - 1, c.y() + i - r - 1, &v)) return false;
+      P(i, j) = v;
+    }
+  x_.resize(n, 2);
+  t_.resize(n);
+  w_.resize(n);
+  sd_.resize(n, 6);
+  Eigen::VectorXf gx(n), gy(n);
+  for (int i = 0; i < side; ++i)
+    for (int j = 0; j < side; ++j) {
+      const int k = i * side + j;
+      x_(k, 0) = static_cast<float>(j - r);
+      x_(k, 1) = static_cast<float>(i - r);
+      t_[k] = P(i + 1, j + 1);
+      gx[k] = 0.5f * (P(i + 1, j + 2) - P(i + 1, j));
+      gy[k] = 0.5f * (P(i + 2, j + 1) - P(i, j + 1));
+      w_[k] = static_cast<float>(std::exp(-0.5 * (x_(k, 0) * x_(k, 0) + x_(k, 1) * x_(k, 1)) / (sw * sw)));
+    }
+  const float wsum = w_.sum();
+  const float mean = w_.dot(t_) / wsum;
+  const float var = w_.dot((t_.array() - mean).square().matrix()) / wsum;
+  if (!(var > 1e-6f)) return false;
+  const float sd = std::sqrt(var);
+  t_ = (t_.array() - mean) / sd;
+  gx /= sd;
+  gy /= sd;
+  // Parameters p = (a11 - 1, a21, a12, a22 - 1, b1, b2): dW/dp at p = 0.
+  for (int k = 0; k < n; ++k) {
+    const float X = x_(k, 0), Y = x_(k, 1);
+    sd_.row(k) << gx[k] * X, gy[k] * X, gx[k] * Y, gy[k] * Y, gx[k], gy[k];
+  }
+  const Eigen::Matrix<double, 6, 6> H = (sd_.transpose() * w_.asDiagonal() * sd_).cast<double>();
+  Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(H);
+  if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 1e-6 * ldlt.vectorD().maxCoeff())) return false;
+  hinv_ = ldlt.solve(Eigen::Matrix<double, 6, 6>::Identity());
+  n_ = n;
+  return true;
+}
+
+bool AffineTemplate::align(const cv::Mat& img, Eigen::Matrix2d* A, Eigen::Vector2d* b, double* rms) const {
+  if (n_ == 0) return false;
+  Eigen::Matrix2d a = *A;
+  Eigen::Vector2d t = *b;
+  Eigen::VectorXf iw(n_);
+  const double wsum = w_.sum();
+  double r = 1e9;
+  for (int it = 0; it < o_.max_iterations; ++it) {
+    for (int k = 0; k < n_; ++k) {
+      const double X = x_(k, 0), Y = x_(k, 1);
+      float v;
+      if (!sample(img, a(0, 0) * X + a(0, 1) * Y + t.x(), a(1, 0) * X + a(1, 1) * Y + t.y(), &v)) return false;
+      iw[k] = v;
+    }
+    // Gain/bias: normalize the warped image like the template.
+    const float mean = static_cast<float>(w_.dot(iw) / wsum);
+    const float var = static_cast<float>(w_.dot((iw.array() - mean).square().matrix()) / wsum);
+    if (!(var > 1e-6f)) return false;
+    const Eigen::VectorXf e = (iw.array() - mean) / std::sqrt(var) - t_.array();
+    r = std::sqrt(w_.dot(e.cwiseAbs2()) / wsum);
+    const Eigen::Matrix<double, 6, 1> dp = hinv_ * (sd_.transpose() * w_.asDiagonal() * e).cast<double>();
+    // Inverse composition: W <- W o W(dp)^-1.
+    Eigen::Matrix3d Wd = Eigen::Matrix3d::Identity();
+    Wd(0, 0) += dp[0];
+    Wd(1, 0) = dp[1];
+    Wd(0, 1) = dp[2];
+    Wd(1, 1) += dp[3];
+    Wd(0, 2) = dp[4];
+    Wd(1, 2) = dp[5];
+    Eigen::Matrix3d W = Eigen::Matrix3d::Identity();
+    W.topLeftCorner<2, 2>() = a;
+    W.topRightCorner<2, 1>() = t;
+    const Eigen::Matrix3d Wn = W * Wd.inverse();
+    if (!Wn.allFinite()) return false;
+    a = Wn.topLeftCorner<2, 2>();
+    t = Wn.topRightCorner<2, 1>();
+    // Step size: how far the template's corners moved.
+    const double R = o_.radius;
+    const double move = (dp.head<4>().cwiseAbs().sum()) * R + dp.tail<2>().norm();
+    if (move < o_.epsilon_px) break;
+  }
+  const double det = a.determinant();
+  *rms = r;
+  if (!(r <= o_.max_rms) || !(det >= o_.min_det && det <= o_.max_det)) return false;
+  *A = a;
+  *b = t;
+  return true;
+}
+
+}  // namespace rsfm::vision

@@ -1,0 +1,126 @@
+#include "rsfm/vision/plane_init.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <functional>
+#include <opencv2/calib3d.hpp>
+
+namespace rsfm::vision {
+
+namespace {
+
+double rotAngleDeg(const cv::Mat& a, const cv::Mat& b) {
+  const cv::Mat d = a.t() * b;
+  const double c = std::clamp((cv::trace(d)[0] - 1.0) / 2.0, -1.0, 1.0);
+  return std::acos(c) * 180.0 / M_PI;
+}
+
+double angleDeg(const cv::Vec3d& a, const cv::Vec3d& b) {
+  const double c = std::clamp(a.dot(b) / (cv::norm(a) * cv::norm(b)), -1.0, 1.0);
+  return std::acos(c) * 180.0 / M_PI;
+}
+
+struct Sol {
+  cv::Mat R;
+  cv::Vec3d t, n;
+};
+
+/// Decompositions of H at focal f whose plane is in front of the reference camera for (almost)
+/// all of the plane's reference points.
+std::vector<Sol> solutions(const cv::Matx33d& H, const cv::Matx33d& K, const std::vector<cv::Vec3d>& rays) {
+  std::vector<cv::Mat> Rs, ts, ns;
+  cv::decomposeHomographyMat(cv::Mat(H), cv::Mat(K), Rs, ts, ns);
+  std::vector<Sol> out;
+  for (size_t i = 0; i < Rs.size(); ++i) {
+    const cv::Vec3d n(ns[i].at<double>(0), ns[i].at<double>(1), ns[i].at<double>(2));
+    int front = 0;
+    for (const auto& m : rays) front += n.dot(m) > 0;
+    if (front < 0.8 * rays.size()) continue;
+    out.push_back({Rs[i], cv::Vec3d(ts[i].at<double>(0), ts[i].at<double>(1), ts[i].at<double>(2)), n});
+  }
+  return out;
+}
+
+}  // namespace
+
+PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal_px) {
+  PlaneStart out;
+  std::vector<const FoundPlane*> planes;
+  for (const auto& c : pf.candidates)
+    if (c.verdict == PlaneVerdict::Accepted && c.label >= 0) planes.push_back(&c);
+  std::sort(planes.begin(), planes.end(), [](auto* a, auto* b) { return a->label < b->label; });
+  const int m = static_cast<int>(planes.size());
+  if (m == 0 || pf.pair_frame < 2) {
+    out.note = "no plane or no motion to decompose";
+    return out;
+  }
+  const int k2 = pf.pair_frame, k1 = std::max(1, pf.pair_frame / 2);
+  const double W = std::max(tracks.image.width, tracks.image.height);
+  std::vector<double> grid;
+  if (focal_px > 0) grid.push_back(focal_px);
+  else
+    for (int i = 0; i <= 48; ++i) grid.push_back(W * 0.3 * std::pow(10.0, i / 48.0));  // 0.3 W .. 3 W
+  double best = std::numeric_limits<double>::infinity();
+  for (double f : grid) {
+    const cv::Matx33d K(f, 0, tracks.image.cx, 0, f, tracks.image.cy, 0, 0, 1);
+    const cv::Matx33d Ki = K.inv();
+    std::vector<std::vector<Sol>> s1(m), s2(m);
+    bool ok = true;
+    for (int j = 0; j < m && ok; ++j) {
+      std::vector<cv::Vec3d> rays;
+      for (int id : planes[j]->members)
+        if (const TrackPoint* p = tracks.find(0, id)) rays.push_back(Ki * cv::Vec3d(p->px.x(), p->px.y(), 1.0));
+      if (static_cast<int>(planes[j]->H.size()) <= k2) ok = false;
+      else {
+        s1[j] = solutions(planes[j]->H[k1], K, rays);
+        s2[j] = solutions(planes[j]->H[k2], K, rays);
+        ok = !s1[j].empty() && !s2[j].empty();
+      }
+    }
+    if (!ok) continue;
+    // Joint choice of one solution per plane at each frame (at most 4^(2m) combinations).
+    std::vector<int> c1(m, 0), c2(m, 0);
+    std::vector<int> bc1, bc2;
+    double bcost = std::numeric_limits<double>::infinity();
+    std::function<void(int)> rec = [&](int level) {
+      if (level == 2 * m) {
+        double cost = 0.0;
+        for (int a = 0; a < m; ++a) {
+          cost += angleDeg(s1[a][c1[a]].n, s2[a][c2[a]].n);
+          for (int b = a + 1; b < m; ++b)
+            cost += rotAngleDeg(s1[a][c1[a]].R, s1[b][c1[b]].R) + rotAngleDeg(s2[a][c2[a]].R, s2[b][c2[b]].R);
+        }
+        if (cost < bcost) bcost = cost, bc1 = c1, bc2 = c2;
+        return;
+      }
+      const int j = level % m;
+      auto& c = level < m ? c1 : c2;
+      const auto& s = level < m ? s1 : s2;
+      for (size_t i = 0; i < s[j].size(); ++i) {
+        c[j] = static_cast<int>(i);
+        rec(level + 1);
+      }
+    };
+    rec(0);
+    if (bcost < best) {
+      best = bcost;
+      out.ok = true;
+      out.focal_px = f;
+      out.score = bcost;
+      out.normals.assign(m, Eigen::Vector3d::UnitZ());
+      out.distance_ratios.assign(m, 1.0);
+      const double t0 = cv::norm(s2[0][bc2[0]].t);
+      for (int j = 0; j < m; ++j) {
+        const cv::Vec3d n = s2[j][bc2[j]].n;
+        out.normals[j] = Eigen::Vector3d(n[0], n[1], n[2]).normalized();
+        const double tj = cv::norm(s2[j][bc2[j]].t);
+        out.distance_ratios[j] = (t0 > 1e-9 && tj > 1e-9) ? t0 / tj : 1.0;
+      }
+    }
+  }
+  if (!out.ok) out.note = "no consistent homography decomposition";
+  return out;
+}
+
+}  // namespace rsfm::vision
