@@ -138,6 +138,32 @@ if "$RSFM" evaluate --estimate "$E" --truth "$T" --out "$V" >"$TMP/out.txt" 2>"$
 else
   fail=$((fail + 1)); echo "FAIL evaluate good run: $(cat "$TMP/err.txt") $(ls "$V" 2>&1 | tr '\n' ' ')"
 fi
+# experiment two-object: a small good run with the documented header, and bad options.
+W="$TMP/two"
+if "$RSFM" experiment two-object --trials 1 --frames 20 --noise 1 --quiet --out "$W" 2>"$TMP/err.txt"; then
+  hdr=$(head -1 "$W/two_object.csv")
+  rows=$(($(wc -l <"$W/two_object.csv") - 1))
+  if [ "$hdr" = "noise_px,object,rot_err_deg,t_err_pct,normal_err_deg,beta_err_pct,failed" ] && [ "$rows" -eq 2 ] &&
+     [ -s "$W/two_object.md" ] && [ -s "$W/two_object_data.csv" ] && [ -s "$W/two_object.png" ] &&
+     [ -s "$W/two_object.svg" ] && ! ls "$W" | grep -q tmp && ! grep -qi nan "$W/two_object.csv"; then
+    pass=$((pass + 1)); echo "ok   two-object good run: $(ls "$W" | tr '\n' ' ')"
+  else
+    fail=$((fail + 1)); echo "FAIL two-object good run: header '$hdr', $rows rows, files: $(ls "$W" | tr '\n' ' ')"
+  fi
+else
+  fail=$((fail + 1)); echo "FAIL two-object good run exited non-zero: $(cat "$TMP/err.txt")"
+fi
+D3="$TMP/o3"
+check "two-object: zero trials" 2 "$D3" -- experiment two-object --out "$D3" --trials 0
+check "two-object: negative noise" 2 "$D3" -- experiment two-object --out "$D3" --noise 0.5,-1
+check "two-object: NaN noise" 2 "$D3" -- experiment two-object --out "$D3" --noise nan
+check "two-object: too few points" 2 "$D3" -- experiment two-object --out "$D3" --points-per-object 4
+check "two-object: bad reference" 2 "$D3" -- experiment two-object --out "$D3" --reference magic
+check "two-object: non-positive beta0" 2 "$D3" -- experiment two-object --out "$D3" --beta0 0
+check "two-object: unknown option" 2 "$D3" -- experiment two-object --out "$D3" --bogus 1
+check "two-object: output is a file" 2 "" -- experiment two-object --out "$TMP/afile"
+check "planes: beta bound above beta0" 2 "$D2" -- experiment planes --out "$D2" --beta-min 0.6
+check "planes: negative warm-up" 2 "$D2" -- experiment planes --out "$D2" --warmup-frames -1
 
 # --help succeeds.
 if "$RSFM" experiment table1 --help >/dev/null 2>&1; then pass=$((pass + 1)); echo "ok   --help"; else fail=$((fail + 1)); echo "FAIL --help"; fi

@@ -57,6 +57,51 @@ NoiselessResult runNoiselessPlane(RotationReading reading, int iterations = 1) {
   return r;
 }
 
+TEST(PlaneFilter, BetaBoundProjectsTheEstimateOntoTheBound) {
+  // FilterOptions::beta_min: a bound above the truth (beta = 1) that the noise-free data pull
+  // the estimate through (beta0 = 2.5). Without it beta goes below 2; with it beta never does,
+  // it sits exactly on the bound whenever it was projected.
+  Table1SceneOptions so;
+  std::mt19937_64 rng(42);
+  const Table1Scene scene = makeTable1Scene(so, rng);
+  const int Np = static_cast<int>(scene.points.size());
+  auto run = [&](double beta_min, int* projected, double* min_beta) {
+    FilterOptions fo;
+    fo.sigma_uv = 1.0 / so.scale_px;
+    fo.beta_min = beta_min;
+    Eigen::VectorXd x0 = Eigen::VectorXd::Zero(10);
+    x0[idx::kBeta] = 2.5;
+    x0.tail<3>() = so.plane;
+    Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(10, 10);
+    P0(6, 6) = 1.0;
+    P0(7, 7) = P0(8, 8) = 0.1;
+    std::vector<bool> fixed(10, false);
+    fixed[9] = true;
+    RecursiveFilter<PlaneModel> f(PlaneModel(scene.uv[0], std::vector<int>(Np, 0)), Ekf(x0, P0, fixed), fo);
+    *projected = 0;
+    *min_beta = HUGE_VAL;
+    for (int k = 1; k <= 30; ++k) {
+      std::vector<Observation> obs;
+      for (int i = 0; i < Np; ++i) obs.push_back({i, scene.uv[k][i]});
+      const FrameStats fs = f.step(obs);
+      EXPECT_EQ(fs.health, kHealthy) << "frame " << k;
+      *min_beta = std::min(*min_beta, f.beta());
+      if (fs.beta_projected) {
+        ++*projected;
+        EXPECT_NEAR(f.beta(), beta_min, 1e-12) << "frame " << k;
+      }
+    }
+  };
+  int projected = 0;
+  double min_beta = 0;
+  run(0.0, &projected, &min_beta);
+  EXPECT_EQ(projected, 0);
+  EXPECT_LT(min_beta, 1.9);  // without the bound
+  run(2.0, &projected, &min_beta);
+  EXPECT_GT(projected, 0);
+  EXPECT_GE(min_beta, 2.0 - 1e-12);
+}
+
 TEST(PlaneFilter, NoiselessConvergesResetReading) {
   const NoiselessResult r = runNoiselessPlane(RotationReading::Reset);
   std::cout << "reset: normal " << r.normal_err_deg << " deg, beta err " << r.beta_err << ", t err "

@@ -3,21 +3,21 @@
 
 #include "rsfm/experiment/planes.hpp"
 #include "rsfm/geometry.hpp"
+#include "rsfm/rotation.hpp"
 #include "rsfm/sim/box_scene.hpp"
 
 namespace rsfm {
 namespace {
 
-TEST(BoxScene, ThreeOrthogonalFacesWithVisiblePointsOnTheirPlanes) {
-  BoxSceneOptions o;
-  std::mt19937_64 rng(5);
-  const BoxScene s = makeBoxScene(o, rng);
-  ASSERT_EQ(s.faces(), 3);
-  ASSERT_EQ(s.points.size(), 90u);
-  for (int a = 0; a < 3; ++a)
-    for (int b = a + 1; b < 3; ++b) EXPECT_NEAR(s.normals[a].dot(s.normals[b]), 0.0, 1e-12);
-  for (int j = 0; j < 3; ++j) {
-    EXPECT_LT(normalAngle(s.planes[j], s.normals[j]), 1e-12);
+/// Checks a box scene's faces (orthogonal, on their planes, away from the origin) and points
+/// (on their face, inside the image margin in every frame) and the orbit about the box centre.
+void checkBoxScene(const BoxSceneOptions& o, const BoxScene& s) {
+  const int m = s.faces();
+  ASSERT_EQ(s.points.size(), static_cast<size_t>(o.points_per_face * m));
+  for (int a = 0; a < m; ++a)
+    for (int b = a + 1; b < m; ++b) EXPECT_NEAR(s.normals[a].dot(s.normals[b]), 0.0, 1e-12);
+  for (int j = 0; j < m; ++j) {
+    EXPECT_LT(normalAngle(s.planes[j], s.normals[j]), 1e-7);  // acos resolution near 0: ~1.5e-8
     EXPECT_LT(1.0 / s.planes[j].norm(), 10.0);
     EXPECT_GT(1.0 / s.planes[j].norm(), 0.1);  // planes well away from the image-plane origin
   }
@@ -28,6 +28,27 @@ TEST(BoxScene, ThreeOrthogonalFacesWithVisiblePointsOnTheirPlanes) {
   }
   // Truth motion: an orbit about the box centre.
   EXPECT_LT((s.R.back() * o.centre + s.t.back() - o.centre).norm(), 1e-12);
+}
+
+TEST(BoxScene, DefaultTwoOrthogonalFacesThroughTheFiftyDegreeOrbit) {
+  // Default: Table 1's -0.5 deg/frame orbit (50 deg); two faces stay visible throughout.
+  BoxSceneOptions o;
+  std::mt19937_64 rng(5);
+  const BoxScene s = makeBoxScene(o, rng);
+  ASSERT_EQ(s.faces(), 2);
+  checkBoxScene(o, s);
+  EXPECT_NEAR(rotationAngle(s.R.back(), Eigen::Matrix3d::Identity()) * 180.0 / M_PI, 50.0, 1e-9);
+}
+
+TEST(BoxScene, ThreeOrthogonalFacesWithVisiblePointsOnTheirPlanes) {
+  // The earlier scene (pitch 25 deg, 0.3 deg/frame): three faces visible throughout.
+  BoxSceneOptions o;
+  o.pitch_deg = 25.0;
+  o.deg_per_frame = 0.3;
+  std::mt19937_64 rng(5);
+  const BoxScene s = makeBoxScene(o, rng);
+  ASSERT_EQ(s.faces(), 3);
+  checkBoxScene(o, s);
 }
 
 TEST(BoxScene, FailsClearlyWhenFacesCannotStayVisible) {
@@ -64,6 +85,59 @@ TEST(PlanesExperiment, RowsForEveryMethodAndBatchRatio) {
   }
 }
 
+TEST(PlanesExperiment, WarmupIterationsFixTheNoiseFreeStart) {
+  // Noise-free tracks (filtered assuming 0.1 px), 8 trials, seed 1: with 90 accurate points the
+  // first plain EKF updates collapse P around the poor linearization at beta0 = 0.5, and the
+  // rigid filter keeps that error (measured: rms_t 0.0156, normal 0.155 deg, face angle 0.274
+  // deg). Iterated updates in the first 5 frames (FilterOptions::warmup_frames) remove it
+  // (rms_t 0.0016, normal 0.042 deg, face angle 0.058 deg).
+  PlanesOptions o;
+  o.trials = 8;
+  o.noise_px = {0.0};
+  o.batch = false;
+  o.iekf_iterations = 0;
+  o.threads = 2;
+  auto rigid = [](const PlanesResult& r) {
+    for (const auto& row : r.rows)
+      if (row.method == "planes-rigid") return row;
+    return PlanesRow{};
+  };
+  const PlanesRow plain = rigid(runPlanes(o));
+  o.warmup_frames = 5;
+  const PlanesRow warm = rigid(runPlanes(o));
+  ASSERT_EQ(plain.failed, 0);
+  ASSERT_EQ(warm.failed, 0);
+  EXPECT_LT(warm.rms_t, 0.004);
+  EXPECT_LT(warm.normal_err_deg, 0.1);
+  EXPECT_LT(warm.face_angle_err_deg, 0.12);
+  EXPECT_GT(plain.rms_t, 0.01);  // without the warm-up
+  EXPECT_GT(plain.face_angle_err_deg, 0.2);
+}
+
+TEST(PlanesExperiment, DefaultSceneMeetsTheTwoPixelTargetsOnAFewTrials) {
+  // The 2 px targets on the default box scene (Table 1's -0.5 deg/frame orbit), 6 trials,
+  // seed 1, no batch: face angle within 1 deg of 90, beta within 5 %, and planes-rigid's rms_t
+  // below plane-per-face's (measured: 0.86 deg, 2.5 %, 0.081 vs 0.142).
+  PlanesOptions o;
+  o.trials = 6;
+  o.noise_px = {2.0};
+  o.batch = false;
+  o.iekf_iterations = 0;
+  o.threads = 2;
+  const PlanesResult r = runPlanes(o);
+  const PlanesRow* rigid = nullptr;
+  const PlanesRow* per_face = nullptr;
+  for (const auto& row : r.rows) {
+    if (row.method == "planes-rigid") rigid = &row;
+    if (row.method == "plane-per-face") per_face = &row;
+  }
+  ASSERT_TRUE(rigid && per_face);
+  ASSERT_EQ(rigid->failed, 0);
+  EXPECT_LT(rigid->face_angle_err_deg, 1.0);
+  EXPECT_LT(rigid->beta_err_pct, 5.0);
+  EXPECT_LT(rigid->rms_t, per_face->rms_t);
+}
+
 TEST(PlanesExperiment, RejectsBadOptions) {
   PlanesOptions o;
   o.trials = 0;
@@ -73,6 +147,12 @@ TEST(PlanesExperiment, RejectsBadOptions) {
   EXPECT_FALSE(validatePlanesOptions(o).empty());
   o = PlanesOptions{};
   o.reference_model = "magic";
+  EXPECT_FALSE(validatePlanesOptions(o).empty());
+  o = PlanesOptions{};
+  o.beta_min = o.beta0;
+  EXPECT_FALSE(validatePlanesOptions(o).empty());
+  o = PlanesOptions{};
+  o.warmup_frames = -1;
   EXPECT_FALSE(validatePlanesOptions(o).empty());
   EXPECT_TRUE(validatePlanesOptions(PlanesOptions{}).empty());
 }

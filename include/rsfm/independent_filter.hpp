@@ -3,6 +3,8 @@
 // plane, folded from that plane's omega after each update (reset reading, DESIGN §1), identity
 // dynamics plus noise for every plane's motion and the shared beta.
 #include <Eigen/Core>
+#include <Eigen/LU>
+#include <cstdint>
 #include <vector>
 
 #include "rsfm/ekf.hpp"
@@ -19,6 +21,12 @@ struct IndependentFilterOptions {
       (Eigen::Matrix<double, 6, 1>() << 3e-4, 3e-4, 3e-4, 1e-4, 1e-4, 1e-4).finished();
   double q_beta = 0.0;       ///< per-frame variance of the shared beta
   double q_structure = 0.0;  ///< per-frame variance of every free plane component
+  /// Treatment of the reference (first-frame) positions, as in RecursiveFilter (ReferenceModel:
+  /// exact as published, inflate R through dh/d(u, v)^1, or also refine each reference after
+  /// every update; recursive_filter.hpp and docs/filter.md).
+  ReferenceModel reference = ReferenceModel::Exact;
+  /// Standard deviation of a reference position (normalized units); < 0: sigma_uv.
+  double reference_sigma = -1.0;
   UpdateOptions update;      ///< gating, form (min_blocks: at least 5 points)
 };
 
@@ -37,8 +45,13 @@ class IndependentPlanesFilter {
     for (int j = 0; j < model_.numPlanes(); ++j)
       q.segment<6>(IndependentPlanesModel::motionIndex(j)) = opt_.q_motion;
     ekf_.predict(q);
+    const double rs = opt_.reference_sigma >= 0.0 ? opt_.reference_sigma : opt_.sigma_uv;
+    while (static_cast<int>(ref_cov_.size()) < model_.numPoints())
+      ref_cov_.push_back(Eigen::Matrix2d::Identity() * rs * rs);
+    const std::vector<Eigen::Matrix2d>* rc = opt_.reference == ReferenceModel::Exact ? nullptr : &ref_cov_;
     MeasurementBatch batch;
-    model_.linearize(ekf_.x(), Rg_, obs, opt_.sigma_uv, &batch, &fs.invalid, &fs.first_problem);
+    std::vector<int> used;
+    model_.linearize(ekf_.x(), Rg_, obs, opt_.sigma_uv, &batch, &fs.invalid, &fs.first_problem, rc, &used);
     const Eigen::VectorXd x_prior = ekf_.x();
     const Eigen::MatrixXd P_prior = ekf_.P();
     fs.iterations = 1;
@@ -52,6 +65,8 @@ class IndependentPlanesFilter {
         fs.health |= kInvalidRotation;
         return fs;
       }
+    if (opt_.reference == ReferenceModel::Refine && fs.update.applied && fs.health == kHealthy)
+      refineReferences(obs, used, fs.update.gated_mask);
     for (int j = 0; j < model_.numPlanes(); ++j) {
       auto w = ekf_.mutableX().segment<3>(IndependentPlanesModel::motionIndex(j) + 3);
       Rg_[j] = incrementalRotation(w) * Rg_[j];  // R^k = R(dq(omega)) R^{k-1}, per plane
@@ -72,10 +87,36 @@ class IndependentPlanesFilter {
   Eigen::Vector3d plane(int j) const { return ekf_.x().segment<3>(IndependentPlanesModel::planeIndex(j)); }
 
  private:
+  /// ReferenceModel::Refine: as RecursiveFilter::refineReferences, with the state at its
+  /// posterior (before omega is folded): S = sigma^2 I + H P+ H^T, C^-1 <- C^-1 + Hu^T S^-1 Hu,
+  /// uv <- uv + C Hu^T S^-1 (z - h).
+  void refineReferences(const std::vector<Observation>& obs, const std::vector<int>& used,
+                        const std::vector<std::uint8_t>& gated) {
+    const double s2 = opt_.sigma_uv * opt_.sigma_uv;
+    const Eigen::MatrixXd& P = ekf_.P();
+    for (size_t b = 0; b < used.size(); ++b) {
+      if (b < gated.size() && gated[b]) continue;
+      const Observation& o = obs[used[b]];
+      Eigen::Vector2d h;
+      Eigen::MatrixXd H;
+      Eigen::Matrix2d Hu;
+      if (model_.measure(ekf_.x(), Rg_, o.id, &h, &H, &Hu) != MeasureStatus::Ok) continue;
+      const Eigen::Matrix2d S = s2 * Eigen::Matrix2d::Identity() + H * P * H.transpose();
+      const Eigen::Matrix2d Si = S.inverse();
+      Eigen::Matrix2d& C = ref_cov_[o.id];
+      const Eigen::Matrix2d Cn = (C.inverse() + Hu.transpose() * Si * Hu).inverse();
+      const Eigen::Vector2d step = Cn * (Hu.transpose() * Si * (o.uv - h));
+      if (!Cn.allFinite() || !step.allFinite()) continue;
+      model_.setReference(o.id, model_.reference(o.id) + step);
+      C = 0.5 * (Cn + Cn.transpose());
+    }
+  }
+
   IndependentPlanesModel model_;
   Ekf ekf_;
   IndependentFilterOptions opt_;
   std::vector<Eigen::Matrix3d> Rg_;
+  std::vector<Eigen::Matrix2d> ref_cov_;
 };
 
 }  // namespace rsfm

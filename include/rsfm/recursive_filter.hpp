@@ -4,6 +4,8 @@
 // fold the incremental rotation into the global rotation R_g (and zero omega in the reset reading).
 #include <Eigen/Core>
 #include <Eigen/LU>
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <string_view>
 #include <vector>
@@ -67,6 +69,18 @@ struct FilterOptions {
   int iterations = 1;
   /// Stop iterating when the step |x_{i+1} - x_i| (infinity norm, state units) falls below this.
   double iteration_tol = 1e-9;
+  /// Warm-up (the filter's first frames, where the prior is far from the truth and one frame of
+  /// many points can collapse P around a poor linearization): the first `warmup_frames` steps use
+  /// max(iterations, warmup_iterations) update iterations (iterated EKF, see above), later steps
+  /// `iterations`. 0 = no warm-up (the published filter).
+  int warmup_frames = 0;
+  int warmup_iterations = 5;
+  /// Lower bound on beta = 1/f (0: none). beta <= 0 has no camera meaning (the centre of
+  /// projection at or beyond infinity) and t_Z = (t_Z beta) / beta passes through a pole there.
+  /// An update that leaves beta below the bound is projected onto beta = beta_min along the
+  /// posterior covariance (estimate projection: x <- x + P e_beta (beta_min - beta) / P_beta,
+  /// the minimum-P^-1-distance point on the constraint); P is kept.
+  double beta_min = 0.0;
 };
 
 /// What one frame did.
@@ -75,6 +89,7 @@ struct FrameStats {
   int iterations = 0;  ///< measurement linearizations used (1 for the plain EKF)
   int invalid = 0;  ///< observations whose prediction failed (see MeasureStatus), not used
   MeasureStatus first_problem = MeasureStatus::Ok;
+  bool beta_projected = false;  ///< the update left beta < FilterOptions::beta_min (projected)
   std::uint32_t health = kHealthy;  ///< EKF health after the step (HealthFlag bits)
   /// Observation index (into step()'s argument) of each measurement block; update.gated_mask
   /// is aligned with it.
@@ -98,6 +113,9 @@ class RecursiveFilter {
     ensureReferenceCovariances();
     const std::vector<Eigen::Matrix2d>* rc =
         opt_.reference == ReferenceModel::Exact ? nullptr : &ref_cov_;
+    ++steps_;
+    const bool warm = steps_ <= opt_.warmup_frames;
+    const int iterations = warm ? std::max(opt_.iterations, opt_.warmup_iterations) : opt_.iterations;
     MeasurementBatch batch;
     std::vector<int> used;
     model_.linearize(ekf_.x(), Rg_, obs, opt_.sigma_uv, rc, &batch, &fs.invalid,
@@ -106,8 +124,14 @@ class RecursiveFilter {
     const Eigen::MatrixXd P_prior = ekf_.P();
     fs.iterations = 1;
     fs.update = ekf_.update(batch, opt_.update);
-    if (opt_.iterations > 1 && fs.update.applied) iterate(obs, rc, x_prior, P_prior, &batch, &used, &fs);
+    if (iterations > 1 && fs.update.applied) iterate(iterations, obs, rc, x_prior, P_prior, &batch, &used, &fs);
     fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
+    if (opt_.beta_min > 0.0 && fs.update.applied && ekf_.x()[idx::kBeta] < opt_.beta_min &&
+        ekf_.P()(idx::kBeta, idx::kBeta) > 0.0) {
+      const Eigen::VectorXd col = ekf_.P().col(idx::kBeta);
+      ekf_.mutableX() += col * ((opt_.beta_min - ekf_.x()[idx::kBeta]) / col[idx::kBeta]);
+      fs.beta_projected = true;
+    }
     const Eigen::Vector3d omega = ekf_.x().template segment<3>(idx::kWx);
     if (!incrementalRotationValid(omega)) {
       // The update moved omega out of dq's domain (|omega| >= 2): roll it back and report.
@@ -158,7 +182,7 @@ class RecursiveFilter {
   /// towards it is halved (up to 3 times) until J decreases, so the first step is a damped EKF
   /// step. Stops on a step below iteration_tol, or when no step decreases J (the iterate is kept).
   /// The covariance is the one from the last linearization.
-  void iterate(const std::vector<Observation>& obs, const std::vector<Eigen::Matrix2d>* rc,
+  void iterate(int iterations, const std::vector<Observation>& obs, const std::vector<Eigen::Matrix2d>* rc,
                const Eigen::VectorXd& x_prior, const Eigen::MatrixXd& P_prior, MeasurementBatch* batch,
                std::vector<int>* used, FrameStats* fs) {
     std::vector<char> accepted(obs.size(), 0);
@@ -195,7 +219,7 @@ class RecursiveFilter {
     Eigen::MatrixXd P_gn = ekf_.P();
     UpdateStats st_gn = fs->update;
     std::vector<int> used_gn = *used;
-    for (int it = 0; it < opt_.iterations; ++it) {
+    for (int it = 0; it < iterations; ++it) {
       const Eigen::VectorXd d = x_gn - x_lin;
       bool ok = false;
       Eigen::VectorXd x_acc;
@@ -221,7 +245,7 @@ class RecursiveFilter {
       const double step = (x_acc - x_lin).cwiseAbs().maxCoeff();
       x_lin = x_acc;
       c_lin = c_acc;
-      if (!(step > opt_.iteration_tol) || it + 1 >= opt_.iterations) return;
+      if (!(step > opt_.iteration_tol) || it + 1 >= iterations) return;
       // Next Gauss-Newton point: update of the prior linearized at x_lin.
       MeasurementBatch relin;
       std::vector<int> used_i;
@@ -278,6 +302,7 @@ class RecursiveFilter {
   FilterOptions opt_;
   Eigen::Matrix3d Rg_ = Eigen::Matrix3d::Identity();
   std::vector<Eigen::Matrix2d> ref_cov_;
+  int steps_ = 0;  ///< steps taken (warm-up)
 };
 
 }  // namespace rsfm

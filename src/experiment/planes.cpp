@@ -67,6 +67,8 @@ FilterOptions filterOptions(const PlanesOptions& o, double noise_px) {
   fo.q_motion << o.q_translation, o.q_translation, o.q_translation, o.q_omega, o.q_omega, o.q_omega, o.q_beta;
   fo.update.gate_probability = o.gate_probability;
   parseReferenceModel(o.reference_model, &fo.reference);
+  fo.beta_min = o.beta_min;
+  fo.warmup_frames = o.warmup_frames;
   return fo;
 }
 
@@ -361,6 +363,8 @@ std::string validatePlanesOptions(const PlanesOptions& o) {
   if (ReferenceModel r; !parseReferenceModel(o.reference_model, &r))
     return "--reference must be 'exact', 'inflate' or 'refine'";
   if (o.iekf_iterations < 0) return "--iekf-iterations must be non-negative";
+  if (!(o.beta_min >= 0.0) || !(o.beta_min < o.beta0)) return "--beta-min must be non-negative and below --beta0";
+  if (o.warmup_frames < 0) return "--warmup-frames must be non-negative";
   if (o.threads < 0) return "--threads must be non-negative";
   return {};
 }
@@ -438,12 +442,21 @@ PlanesResult runPlanes(const PlanesOptions& o) {
       res.rows.push_back(row);
     }
   }
-  // ratio_to_batch
-  for (auto& row : res.rows)
-    for (const auto& b : res.rows)
-      if (b.method == "batch" && b.noise_px == row.noise_px && std::isfinite(b.rms_t) && b.rms_t > 1e-9 &&
-          std::isfinite(row.rms_t))
-        row.ratio_to_batch = row.rms_t / b.rms_t;
+  // ratio_to_batch: the method's rms_t over the batch's, both on the trials where both succeeded.
+  const size_t bi = std::find(kMethods.begin(), kMethods.end(), "batch") - kMethods.begin();
+  for (auto& row : res.rows) {
+    if (!o.batch) break;
+    const size_t mi = std::find(kMethods.begin(), kMethods.end(), row.method) - kMethods.begin();
+    const int l = static_cast<int>(std::find(o.noise_px.begin(), o.noise_px.end(), row.noise_px) - o.noise_px.begin());
+    double sm = 0, sb = 0;
+    long nm = 0, nb = 0;
+    for (int i = 0; i < T; ++i) {
+      const auto& tr = outs[static_cast<size_t>(l) * T + i].methods;
+      if (tr[mi].failed || tr[bi].failed) continue;
+      sm += tr[mi].sum_t2, nm += tr[mi].n_t, sb += tr[bi].sum_t2, nb += tr[bi].n_t;
+    }
+    if (nm > 0 && nb > 0 && sb / nb > 1e-18) row.ratio_to_batch = std::sqrt(sm / nm) / std::sqrt(sb / nb);
+  }
   res.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return res;
 }

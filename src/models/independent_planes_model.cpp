@@ -21,19 +21,23 @@ MotionContext IndependentPlanesModel::motion(const Eigen::VectorXd& x, int plane
 }
 
 MeasureStatus IndependentPlanesModel::measure(const Eigen::VectorXd& x, const std::vector<Eigen::Matrix3d>& Rgs,
-                                              int i, Eigen::Vector2d* h, Eigen::MatrixXd* H) const {
+                                              int i, Eigen::Vector2d* h, Eigen::MatrixXd* H,
+                                              Eigen::Matrix2d* Hu) const {
   if (i < 0 || i >= numPoints()) return MeasureStatus::UnknownFeature;
   const int l = labels_[i];
   const MotionContext m = motion(x, l, Rgs[l]);
   const Eigen::Vector3d N = x.segment<3>(planeIndex(l));
   Eigen::Vector3d p, dpb;
   Eigen::Matrix3d dpN;
-  MeasureStatus s = PlaneModel::point(N, m.beta, ref_[i], &p, &dpb, &dpN);
+  Eigen::Matrix<double, 3, 2> dpu;
+  MeasureStatus s = PlaneModel::point(N, m.beta, ref_[i], &p, &dpb, &dpN, Hu ? &dpu : nullptr);
   if (s != MeasureStatus::Ok) return s;
   Eigen::Matrix<double, 2, 7> Hm;
   Eigen::Matrix<double, 2, 3> dhdp;
-  s = projectWithJacobian(m, p, dpb, h, H ? &Hm : nullptr, H ? &dhdp : nullptr);
-  if (s != MeasureStatus::Ok || !H) return s;
+  s = projectWithJacobian(m, p, dpb, h, H ? &Hm : nullptr, (H || Hu) ? &dhdp : nullptr);
+  if (s != MeasureStatus::Ok) return s;
+  if (Hu) *Hu = dhdp * dpu;
+  if (!H) return s;
   H->setZero(2, x.size());
   H->col(betaIndex()) = Hm.col(6);
   H->block<2, 6>(0, motionIndex(l)) = Hm.leftCols<6>();
@@ -43,15 +47,19 @@ MeasureStatus IndependentPlanesModel::measure(const Eigen::VectorXd& x, const st
 
 void IndependentPlanesModel::linearize(const Eigen::VectorXd& x, const std::vector<Eigen::Matrix3d>& Rgs,
                                        const std::vector<Observation>& obs, double sigma, MeasurementBatch* batch,
-                                       int* invalid, MeasureStatus* first_problem) const {
+                                       int* invalid, MeasureStatus* first_problem,
+                                       const std::vector<Eigen::Matrix2d>* ref_cov, std::vector<int>* used) const {
   batch->resize(static_cast<int>(obs.size()), static_cast<int>(x.size()), 2);
   *invalid = 0;
   *first_problem = MeasureStatus::Ok;
+  if (used) used->clear();
   int b = 0;
-  for (const Observation& o : obs) {
+  for (int k = 0; k < static_cast<int>(obs.size()); ++k) {
+    const Observation& o = obs[k];
     Eigen::Vector2d h;
     Eigen::MatrixXd H;
-    const MeasureStatus s = measure(x, Rgs, o.id, &h, &H);
+    Eigen::Matrix2d Hu;
+    const MeasureStatus s = measure(x, Rgs, o.id, &h, &H, ref_cov ? &Hu : nullptr);
     if (s != MeasureStatus::Ok || !o.uv.allFinite()) {
       if (*invalid == 0) *first_problem = s == MeasureStatus::Ok ? MeasureStatus::NonFinite : s;
       ++*invalid;
@@ -59,7 +67,10 @@ void IndependentPlanesModel::linearize(const Eigen::VectorXd& x, const std::vect
     }
     batch->residual.segment<2>(2 * b) = o.uv - h;
     batch->H.middleRows<2>(2 * b) = H;
-    batch->R.block<2, 2>(2 * b, 0) = Eigen::Matrix2d::Identity() * sigma * sigma;
+    Eigen::Matrix2d R = Eigen::Matrix2d::Identity() * sigma * sigma;
+    if (ref_cov) R += Hu * (*ref_cov)[o.id] * Hu.transpose();
+    batch->R.block<2, 2>(2 * b, 0) = R;
+    if (used) used->push_back(k);
     ++b;
   }
   batch->residual.conservativeResize(2 * b);

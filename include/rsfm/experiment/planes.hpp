@@ -31,10 +31,19 @@ struct PlanesOptions {
   /// Relative to |N| (= 1 / distance), so near and far faces start equally far off in angle
   /// (~n_rel rad).
   double n_rel = 0.1;
-  double q_translation = 3e-4, q_omega = 1e-4, q_beta = 0.0;  ///< per frame (docs/filter.md)
+  /// Per-frame process variances (docs/filter.md: identity dynamics must cover one frame's
+  /// motion). The box orbit moves the camera by |c| theta = 3 x 0.0087 = 0.026 units and 0.5 deg
+  /// per frame: q_translation 1e-3 (sd 0.032), q_omega 1e-4 (sd 0.57 deg).
+  double q_translation = 1e-3, q_omega = 1e-4, q_beta = 0.0;
   double gate_probability = 0.999;
   std::string reference_model = "refine";  ///< exact | inflate | refine (docs/filter.md)
   int iekf_iterations = 5;                  ///< planes-rigid-iekf
+  /// FilterOptions::beta_min of every filter: 0.1 (f <= 10 normalized units, a field of view of
+  /// at least 11 deg) keeps beta away from the t_Z = (t_Z beta) / beta pole (docs/planes.md).
+  double beta_min = 0.1;
+  /// FilterOptions::warmup_frames of every filter (iterated updates, warmup_iterations = 5, in the
+  /// first frames): 0 by default; it fixes noise-free starts but not noisy ones (docs/planes.md).
+  int warmup_frames = 0;
   bool batch = true;
   int threads = 0;
   std::function<void(int, int)> progress;

@@ -35,13 +35,20 @@ class IndependentPlanesModel {
 
   /// Predicted measurement of point i and its Jacobian with respect to the whole state (2 x n).
   /// Rgs: the global rotation of every plane.
+  /// Hu (optional): dh/d(u, v)^1, the derivative with respect to the point's reference position.
   MeasureStatus measure(const Eigen::VectorXd& x, const std::vector<Eigen::Matrix3d>& Rgs, int i,
-                        Eigen::Vector2d* h, Eigen::MatrixXd* H) const;
+                        Eigen::Vector2d* h, Eigen::MatrixXd* H, Eigen::Matrix2d* Hu = nullptr) const;
 
-  /// Linearizes every observation (R = sigma^2 I); failed predictions are left out and counted.
+  /// Linearizes every observation: R = sigma^2 I, plus Hu C_i Hu^T with `ref_cov` (C_i: the
+  /// covariance of point i's reference position; ReferenceModel::Inflate / Refine); failed
+  /// predictions are left out and counted; `used` (optional) receives each block's observation index.
   void linearize(const Eigen::VectorXd& x, const std::vector<Eigen::Matrix3d>& Rgs,
                  const std::vector<Observation>& obs, double sigma, MeasurementBatch* batch, int* invalid,
-                 MeasureStatus* first_problem) const;
+                 MeasureStatus* first_problem, const std::vector<Eigen::Matrix2d>* ref_cov = nullptr,
+                 std::vector<int>* used = nullptr) const;
+
+  /// Replaces point i's reference position (reference refinement).
+  void setReference(int i, const Eigen::Vector2d& uv) { ref_[i] = uv; }
 
  private:
   std::vector<Eigen::Vector2d> ref_;

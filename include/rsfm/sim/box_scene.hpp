@@ -18,8 +18,13 @@ struct BoxSceneOptions {
   double side = 2.0;              ///< cube side (scene units)
   Eigen::Vector3d centre{0.0, 0.0, 3.0};
   double yaw_deg = 30.0;          ///< cube turned about y ...
-  double pitch_deg = 25.0;        ///< ... then about x (three faces stay visible through the orbit)
-  double deg_per_frame = 0.3;     ///< orbit about the y axis through the centre (30 deg in total)
+  /// ... then about x: 35.26 deg = atan(1/sqrt 2), the pitch of a cube's body diagonal (seen
+  /// corner-on at yaw 45). With the 50 deg orbit two faces stay visible throughout (docs/planes.md).
+  double pitch_deg = 35.26;
+  /// Orbit about the y axis through the centre: Table 1's -0.5 deg/frame (50 deg in 100 frames).
+  /// The earlier 0.3 deg/frame (30 deg, three faces) left beta and the rotation too weakly
+  /// observable in the first frames (docs/planes.md).
+  double deg_per_frame = -0.5;
   double beta = 1.0;
   double image_px = 512.0;
   double scale_px = 256.0;        ///< s (256: 90 deg field of view at f = 1)
