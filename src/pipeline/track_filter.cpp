@@ -166,7 +166,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
   int m = 1;
   if (o.model == TrackModel::Planes) {
     m = 0;
-    for (int id = 0; id < tracks.idBound(); ++id) m = std::max(m, labels[id] + 1);
+    for (int id = 0, nid = tracks.idBound(); id < nid; ++id) m = std::max(m, labels[id] + 1);
     if (m == 0) throw std::invalid_argument("planes model: no track is labelled with a plane");
   }
   std::vector<int> ref_count(m, 0);

@@ -63,7 +63,8 @@ bool AffineTemplate::init(const cv::Mat& img, const Eigen::Vector2d& c, const Af
     const float X = x_(k, 0), Y = x_(k, 1);
     sd_.row(k) << gx[k] * X, gy[k] * X, gx[k] * Y, gy[k] * Y, gx[k], gy[k];
   }
-  const Eigen::Matrix<double, 6, 6> H = (sd_.transpose() * w_.asDiagonal() * sd_).cast<double>();
+  sdw_ = w_.asDiagonal() * sd_;
+  const Eigen::Matrix<double, 6, 6> H = (sdw_.transpose() * sd_).cast<double>();
   Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(H);
   if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 1e-6 * ldlt.vectorD().maxCoeff())) return false;
   hinv_ = ldlt.solve(Eigen::Matrix<double, 6, 6>::Identity());
@@ -91,7 +92,7 @@ bool AffineTemplate::align(const cv::Mat& img, Eigen::Matrix2d* A, Eigen::Vector
     if (!(var > 1e-6f)) return false;
     const Eigen::VectorXf e = (iw.array() - mean) / std::sqrt(var) - t_.array();
     r = std::sqrt(w_.dot(e.cwiseAbs2()) / wsum);
-    const Eigen::Matrix<double, 6, 1> dp = hinv_ * (sd_.transpose() * w_.asDiagonal() * e).cast<double>();
+    const Eigen::Matrix<double, 6, 1> dp = hinv_ * (sdw_.transpose() * e).cast<double>();
     // Inverse composition: W <- W o W(dp)^-1.
     Eigen::Matrix3d Wd = Eigen::Matrix3d::Identity();
     Wd(0, 0) += dp[0];

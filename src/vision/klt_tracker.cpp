@@ -82,8 +82,10 @@ void KltTracker::anchor(std::vector<TrackPoint>* tracks) {
       continue;
     }
     // The first appearance no longer matches (lighting, occlusion edge, strong deformation):
-    // re-anchor the track on its frame-to-frame position in this frame, or end it when that
-    // patch has no texture.
+    // re-anchor the track on its frame-to-frame position in this frame - unless that position is
+    // itself doubtful (the alignment moved it far: an occlusion or a slip), or the patch has no
+    // texture; then the track ends.
+    if ((b - t.px).norm() > o_.anchor_max_px && b.allFinite()) continue;
     Anchor fresh;
     if (!fresh.tmpl.init(cur_float_, t.px, o_.affine)) continue;
     it->second = std::move(fresh);
@@ -116,11 +118,17 @@ void KltTracker::process(const cv::Mat& frame) {
     for (const auto& t : cur_) p0.emplace_back(static_cast<float>(t.px.x()), static_cast<float>(t.px.y()));
     std::vector<uchar> st, stb;
     std::vector<float> err, errb;
-    const cv::TermCriteria term(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 30, 0.01);
+    const cv::TermCriteria term(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 20, 0.03);
     cv::calcOpticalFlowPyrLK(prev_pyr_, pyr, p0, p1, st, err, win, o_.pyramid_levels, term, 0, o_.min_eig);
     pb = p0;
-    cv::calcOpticalFlowPyrLK(pyr, prev_pyr_, p1, pb, stb, errb, win, o_.pyramid_levels, term,
-                             cv::OPTFLOW_USE_INITIAL_FLOW, o_.min_eig);
+    const bool fb = o_.fb_check == 1 || (o_.fb_check < 0 && !o_.anchor);
+    if (fb) {
+      cv::calcOpticalFlowPyrLK(pyr, prev_pyr_, p1, pb, stb, errb, win, o_.pyramid_levels, term,
+                               cv::OPTFLOW_USE_INITIAL_FLOW, o_.min_eig);
+    } else {
+      stb = st;
+      for (size_t i = 0; i < p0.size(); ++i) pb[i] = p0[i];
+    }
     std::vector<TrackPoint> next;
     next.reserve(cur_.size());
     const double b = o_.border_px;

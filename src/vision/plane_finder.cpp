@@ -1,5 +1,7 @@
 #include "rsfm/vision/plane_finder.hpp"
 
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
 #include <cmath>
 #include <numeric>
@@ -39,13 +41,39 @@ cv::Point2d apply(const cv::Matx33d& H, const cv::Point2d& p) {
 
 cv::Point2d pt(const TrackPoint& t) { return {t.px.x(), t.px.y()}; }
 
-/// Least-squares homography from correspondences (>= 4), or false.
+/// Least-squares homography from correspondences (>= 4), or false: the normalized DLT (Hartley),
+/// the smallest eigenvector of A^T A (9 x 9), which is much cheaper than cv::findHomography's
+/// iterative refinement and is what the per-frame checks need.
 bool fitH(const std::vector<cv::Point2d>& a, const std::vector<cv::Point2d>& b, cv::Matx33d* H) {
-  if (a.size() < 4) return false;
-  cv::Mat h = cv::findHomography(a, b, 0);
-  if (h.empty()) return false;
-  *H = cv::Matx33d(h);
-  return std::isfinite((*H)(2, 2));
+  const size_t n = a.size();
+  if (n < 4) return false;
+  auto normalizer = [](const std::vector<cv::Point2d>& p) {
+    cv::Point2d c(0, 0);
+    for (const auto& q : p) c += q;
+    c *= 1.0 / p.size();
+    double d = 0;
+    for (const auto& q : p) d += std::hypot(q.x - c.x, q.y - c.y);
+    d /= p.size();
+    const double s = d > 1e-12 ? std::sqrt(2.0) / d : 1.0;
+    return cv::Matx33d(s, 0, -s * c.x, 0, s, -s * c.y, 0, 0, 1);
+  };
+  const cv::Matx33d Ta = normalizer(a), Tb = normalizer(b);
+  Eigen::Matrix<double, 9, 9> M = Eigen::Matrix<double, 9, 9>::Zero();
+  for (size_t i = 0; i < n; ++i) {
+    const cv::Vec3d p = Ta * cv::Vec3d(a[i].x, a[i].y, 1.0), q = Tb * cv::Vec3d(b[i].x, b[i].y, 1.0);
+    Eigen::Matrix<double, 9, 1> r1, r2;
+    r1 << p[0], p[1], 1, 0, 0, 0, -q[0] * p[0], -q[0] * p[1], -q[0];
+    r2 << 0, 0, 0, p[0], p[1], 1, -q[1] * p[0], -q[1] * p[1], -q[1];
+    M.noalias() += r1 * r1.transpose() + r2 * r2.transpose();
+  }
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 9, 9>> es(M);
+  if (es.info() != Eigen::Success) return false;
+  const Eigen::Matrix<double, 9, 1> h = es.eigenvectors().col(0);
+  const cv::Matx33d Hn(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
+  cv::Matx33d Hd = Tb.inv() * Hn * Ta;
+  if (!std::isfinite(Hd(2, 2)) || std::abs(Hd(2, 2)) < 1e-12) return false;
+  *H = Hd * (1.0 / Hd(2, 2));
+  return true;
 }
 
 /// Plane+parallax test (Irani & Anandan): points of a second plane moving rigidly with the first

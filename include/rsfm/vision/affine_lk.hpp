@@ -11,10 +11,10 @@
 namespace rsfm::vision {
 
 struct AffineLkOptions {
-  int radius = 7;             ///< template half-size: (2r + 1)^2 pixels
+  int radius = 5;             ///< template half-size: (2r + 1)^2 pixels
   double window_sigma = 0.0;  ///< Gaussian window sd in template pixels (<= 0: radius / 1.5)
-  int max_iterations = 15;
-  double epsilon_px = 0.01;   ///< stop when the update moves the patch corners less than this
+  int max_iterations = 10;
+  double epsilon_px = 0.02;   ///< stop when the update moves the patch corners less than this
   double max_rms = 0.35;      ///< loss: normalized RMS residual above this (in units of the template's sd)
   double min_det = 0.25, max_det = 4.0;  ///< loss: area change of A outside these bounds
 };
@@ -36,6 +36,7 @@ class AffineTemplate {
   Eigen::VectorXf t_;                // normalized template (zero mean, unit sd)
   Eigen::VectorXf w_;                // window weights
   Eigen::Matrix<float, Eigen::Dynamic, 6> sd_;   // steepest-descent images
+  Eigen::Matrix<float, Eigen::Dynamic, 6> sdw_;  // the same, times the window
   Eigen::Matrix<double, 6, 6> hinv_;
 };
 

@@ -13,14 +13,18 @@
 namespace rsfm::vision {
 
 struct TrackerOptions {
-  int max_tracks = 400;             ///< corners kept alive at most
+  int max_tracks = 300;             ///< corners kept alive at most
   double quality = 0.01;            ///< Shi-Tomasi quality level (fraction of the best corner of a cell)
   int grid_cols = 8, grid_rows = 6; ///< detection grid: each cell gets max_tracks / cells corners at most
   double min_distance_px = 8.0;     ///< minimum distance between corners (px)
   int block_size = 7;               ///< Shi-Tomasi block (px)
-  int window_px = 21;               ///< Lucas-Kanade window side (px)
-  int pyramid_levels = 3;           ///< pyramid levels above the image
+  int window_px = 11;               ///< Lucas-Kanade window side (px)
+  int pyramid_levels = 2;           ///< pyramid levels above the image
   double fb_max_px = 0.5;           ///< forward-backward error above which a track ends (px)
+  /// Forward-backward check: 1 on, 0 off, -1 automatic (on without anchoring; with anchoring the
+  /// affine alignment against the track's first appearance is the consistency check, and the
+  /// backward pass would double the cost).
+  int fb_check = -1;
   double min_eig = 1e-4;            ///< LK minimum eigenvalue threshold (cv::OPTFLOW_LK_GET_MIN_EIGENVALS)
   double redetect_below = 0.7;      ///< re-detect when fewer than this fraction of max_tracks live
   int border_px = 10;               ///< tracks closer than this to the border end
