@@ -1,11 +1,13 @@
 # rsfm: the two entry points of the README.
-#   make demo   install missing Debian packages, build (Release), run the main job on its default
+#   make demo   install missing Debian packages, build (Release), run the main job on its default:
+#               rsfm run on a rendered sequence (evaluated against its truth), on opencv-doc's
+#               box.mp4 and on the ViSP cube sequence (scripts/demo.sh)
 #   make test   install missing Debian packages, build (Release), run every test through ctest
 BUILD ?= build
 OUT ?= out
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 
-.PHONY: all deps configure build demo test bench clean
+.PHONY: all deps configure build demo experiments test bench clean
 
 all: build
 
@@ -19,17 +21,20 @@ build: configure
 	cmake --build $(BUILD) -j$(JOBS)
 
 demo: build
-	./$(BUILD)/rsfm experiment table1 --out $(OUT)
-	@echo
-	@sed -n '/^| formulation | noise px | m_t/,/^$$/p' $(OUT)/table1.md
-	@sed -n '/^| noise px | plane sigma_t/,/^$$/p' $(OUT)/table1.md
-	@echo "Report: $(OUT)/table1.md, $(OUT)/table1.csv, $(OUT)/fig1.png, $(OUT)/fig1.svg"
+	bash scripts/demo.sh $(BUILD) $(OUT)
+
+# The paper's synthetic experiments (issue 2/3): Table 1, the box scene, two objects.
+experiments: build
+	./$(BUILD)/rsfm experiment table1 --out $(OUT)/table1
+	./$(BUILD)/rsfm experiment planes --out $(OUT)/planes
+	./$(BUILD)/rsfm experiment two-object --out $(OUT)/two-object
 
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j$(JOBS)
 
 bench: build
 	./$(BUILD)/rsfm_bench --benchmark_counters_tabular=true
+	bash bench/run_fps.sh $(BUILD)
 
 clean:
 	rm -rf $(BUILD)

@@ -24,6 +24,7 @@ void addTrackerOptions(CLI::App* app, TrackCli* t) {
   app->add_option("--levels", o.pyramid_levels, "pyramid levels")->capture_default_str();
   app->add_option("--fb-max", o.fb_max_px, "forward-backward error limit (px)")->capture_default_str();
   app->add_option("--fb-check", o.fb_check, "forward-backward check: 1 on, 0 off, -1 auto (off when anchored)")->capture_default_str();
+  app->add_option("--anchor-every", o.anchor_every, "align each track to its first appearance every this many frames")->capture_default_str();
   app->add_flag("!--no-anchor", o.anchor, "frame-to-frame tracking only (no re-alignment to each track's first appearance)");
 }
 

@@ -139,7 +139,7 @@ void KltTracker::process(const cv::Mat& frame) {
       if (p1[i].x < b || p1[i].y < b || p1[i].x > gray.cols - 1 - b || p1[i].y > gray.rows - 1 - b) continue;
       next.push_back({cur_[i].id, Eigen::Vector2d(p1[i].x, p1[i].y)});
     }
-    if (o_.anchor && !next.empty()) anchor(&next);
+    if (o_.anchor && !next.empty() && frames_.size() % std::max(1, o_.anchor_every) == 0) anchor(&next);
     cur_.swap(next);
     if (static_cast<double>(cur_.size()) < o_.redetect_below * o_.max_tracks) detect(gray, false);
   }

@@ -13,7 +13,7 @@ namespace rsfm::vision {
 struct AffineLkOptions {
   int radius = 5;             ///< template half-size: (2r + 1)^2 pixels
   double window_sigma = 0.0;  ///< Gaussian window sd in template pixels (<= 0: radius / 1.5)
-  int max_iterations = 10;
+  int max_iterations = 5;
   double epsilon_px = 0.02;   ///< stop when the update moves the patch corners less than this
   double max_rms = 0.35;      ///< loss: normalized RMS residual above this (in units of the template's sd)
   double min_det = 0.25, max_det = 4.0;  ///< loss: area change of A outside these bounds

@@ -37,6 +37,7 @@ struct TrackerOptions {
   bool anchor = true;
   AffineLkOptions affine;
   double anchor_max_px = 2.0;
+  int anchor_every = 2;             ///< align to the first appearance every this many frames
   /// Region of interest: polygon in the first frame's pixels (empty: the whole image). Later
   /// re-detections stay inside the convex hull of the live tracks that started in it.
   std::vector<cv::Point2f> roi;
