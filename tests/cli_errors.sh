@@ -165,6 +165,56 @@ check "two-object: output is a file" 2 "" -- experiment two-object --out "$TMP/a
 check "planes: beta bound above beta0" 2 "$D2" -- experiment planes --out "$D2" --beta-min 0.6
 check "planes: negative warm-up" 2 "$D2" -- experiment planes --out "$D2" --warmup-frames -1
 
+
+# track / estimate / run (docs/tracks.md, docs/estimate.md): bad videos, frames and track files.
+V4="$TMP/video"
+mkdir -p "$TMP/frames"
+check "track: missing video" 2 "$V4" -- track "$TMP/nope.mp4" --out "$V4" --quiet
+echo "this is not a video" >"$TMP/notavideo.mp4"
+check "track: unreadable video" 2 "$V4" -- track "$TMP/notavideo.mp4" --out "$V4" --quiet
+check "run: unreadable video" 2 "$V4" -- run "$TMP/notavideo.mp4" --out "$V4" --quiet
+echo "x" | gzip >"$TMP/box.mp4.gz"
+check "track: compressed video" 2 "$V4" -- track "$TMP/box.mp4.gz" --out "$V4" --quiet
+check "track: bad roi" 2 "$V4" -- track "$TMP/frames" --out "$V4" --roi 1,2,3 --quiet
+check "track: empty folder" 2 "$V4" -- track "$TMP/frames" --out "$V4" --quiet
+# A short image sequence whose third frame is corrupt.
+for i in 0 1 2; do cp "$TMP/bad.png" "$TMP/frames/f00$i.png"; done
+check "track: corrupt frame" 2 "$V4" -- track "$TMP/frames/f%03d.png" --out "$V4" --quiet
+grep -q "f000.png: frame 0 cannot be decoded" "$TMP/err.txt" ||
+  { fail=$((fail + 1)); echo "FAIL corrupt-frame message does not name the file: $(cat "$TMP/err.txt")"; }
+# Frames 0, 1 and 3 of a PGM sequence: frame 2 is missing.
+mkdir -p "$TMP/gap"
+for i in 0 1 3; do
+  /usr/bin/python3 -c "import sys; open(sys.argv[1], 'wb').write(b'P5 64 48 255\n' + bytes((x * 7 + y * 13) % 256 for y in range(48) for x in range(64)))" "$TMP/gap/g$i.pgm"
+done
+check "run: missing frame in a pattern" 2 "$V4" -- run "$TMP/gap/g%d.pgm" --out "$V4" --quiet
+grep -q "missing frame" "$TMP/err.txt" || { fail=$((fail + 1)); echo "FAIL missing-frame message: $(cat "$TMP/err.txt")"; }
+T4="$TMP/tracks"
+mkdir -p "$T4"
+: >"$T4/empty.csv"
+check "estimate: missing tracks file" 2 "$V4" -- estimate --tracks "$T4/none.csv" --out "$V4" --quiet
+check "estimate: empty tracks file" 2 "$V4" -- estimate --tracks "$T4/empty.csv" --out "$V4" --quiet
+printf '# rsfm-tracks 1\n# image_size 640 480\n# frames 0 9\nframe,track,x,y\n0,0,10,10\n0,1,abc,4\n' >"$T4/bad.csv"
+check "estimate: malformed tracks file" 2 "$V4" -- estimate --tracks "$T4/bad.csv" --out "$V4" --quiet
+grep -q "bad.csv:6: x or y is not a number" "$TMP/err.txt" ||
+  { fail=$((fail + 1)); echo "FAIL malformed tracks message lacks file:line: $(cat "$TMP/err.txt")"; }
+# Two planes of 4 tracks each (fewer than the plane model's 5), 10 frames.
+/usr/bin/python3 - "$T4/four.csv" <<'PY'
+import sys
+rows = ["# rsfm-tracks 1", "# image_size 640 480", "# frames 0 9", "frame,track,x,y"]
+pts = [(100 + 60 * (i % 2), 100 + 50 * (i // 2)) for i in range(4)] + [(400 + 50 * (i % 2), 300 + 40 * (i // 2)) for i in range(4)]
+for k in range(10):
+    for i, (x, y) in enumerate(pts):
+        s = 1 + 0.01 * k if i < 4 else 1 - 0.01 * k
+        rows.append(f"{k},{i},{x * s + 2 * k:.4f},{y * s:.4f}")
+open(sys.argv[1], "w").write("\n".join(rows) + "\n")
+PY
+check "estimate: fewer than 5 points on every plane" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --quiet
+check "estimate: fewer than 5 points (manual planes)" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --quiet \
+  --plane-roi "0,0,300,0,300,250,0,250;350,250,640,250,640,480,350,480" --min-plane-tracks 5
+check "estimate: bad model" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --model cubes --quiet
+check "estimate: negative focal" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --focal-px -3 --quiet
+
 # --help succeeds.
 if "$RSFM" experiment table1 --help >/dev/null 2>&1; then pass=$((pass + 1)); echo "ok   --help"; else fail=$((fail + 1)); echo "FAIL --help"; fi
 echo "$pass passed, $fail failed"

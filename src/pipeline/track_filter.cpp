@@ -144,6 +144,11 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
         res.stopped = stopReason(tracks.first_frame + k, fs, PointModel::kMinPoints);
         break;
       }
+      if (!(f.beta() > 0.0)) {
+        res.stopped = "frame " + std::to_string(tracks.first_frame + k) +
+                      ": the focal length estimate left the positive range (beta = " + std::to_string(f.beta()) + ")";
+        break;
+      }
       TrackFrame tf;
       tf.frame = tracks.first_frame + k;
       tf.R = f.rotation();
@@ -278,6 +283,11 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       const FrameStats fs = f.step(obs);
       if (!fs.ok()) {
         res.stopped = stopReason(tracks.first_frame + k, fs, PlaneModel::kMinPoints);
+        break;
+      }
+      if (!(f.beta() > 0.0)) {
+        res.stopped = "frame " + std::to_string(tracks.first_frame + k) +
+                      ": the focal length estimate left the positive range (beta = " + std::to_string(f.beta()) + ")";
         break;
       }
       TrackFrame tf;
