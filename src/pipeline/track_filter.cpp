@@ -66,6 +66,33 @@ std::string stopReason(int frame, const FrameStats& fs, int min_points) {
   return "frame " + std::to_string(frame) + ": " + describeHealth(h);
 }
 
+/// After one step: the reason to stop (empty: go on). Numerical trouble from the EKF, too few
+/// accepted observations, or beta leaving the positive range.
+template <class Model>
+std::string afterStep(const RecursiveFilter<Model>& f, const FrameStats& fs, int frame) {
+  if (!fs.ok()) return stopReason(frame, fs, Model::kMinPoints);
+  if (!(f.beta() > 0.0))
+    return "frame " + std::to_string(frame) + ": the focal length estimate left the positive range (beta = " +
+           std::to_string(f.beta()) + ")";
+  return "";
+}
+
+/// Motion, beta and the update's counts of one frame.
+template <class Model>
+TrackFrame frameOf(const RecursiveFilter<Model>& f, const FrameStats& fs, int frame, int observed) {
+  TrackFrame tf;
+  tf.frame = frame;
+  tf.R = f.rotation();
+  tf.t = f.translation();
+  tf.beta = f.beta();
+  tf.var_beta = f.ekf().P()(idx::kBeta, idx::kBeta);
+  tf.observed = observed;
+  tf.used = fs.update.used;
+  tf.gated = fs.update.gated;
+  tf.nis_per_dof = fs.update.nis_dof > 0 ? fs.update.nis / fs.update.nis_dof : 0.0;
+  return tf;
+}
+
 }  // namespace
 
 TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterOptions& o,
@@ -140,25 +167,9 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       for (const auto& p : tracks.frames[k])
         if (pidx[p.id] >= 0) obs.push_back({pidx[p.id], uvOf(p.px)});
       const FrameStats fs = f.step(obs);
-      if (!fs.ok()) {
-        res.stopped = stopReason(tracks.first_frame + k, fs, PointModel::kMinPoints);
-        break;
-      }
-      if (!(f.beta() > 0.0)) {
-        res.stopped = "frame " + std::to_string(tracks.first_frame + k) +
-                      ": the focal length estimate left the positive range (beta = " + std::to_string(f.beta()) + ")";
-        break;
-      }
-      TrackFrame tf;
-      tf.frame = tracks.first_frame + k;
-      tf.R = f.rotation();
-      tf.t = f.translation();
-      tf.beta = f.beta();
-      tf.var_beta = f.ekf().P()(idx::kBeta, idx::kBeta);
-      tf.observed = static_cast<int>(obs.size());
-      tf.used = fs.update.used;
-      tf.gated = fs.update.gated;
-      tf.nis_per_dof = fs.update.nis_dof > 0 ? fs.update.nis / fs.update.nis_dof : 0.0;
+      res.stopped = afterStep(f, fs, tracks.first_frame + k);
+      if (!res.stopped.empty()) break;
+      TrackFrame tf = frameOf(f, fs, tracks.first_frame + k, static_cast<int>(obs.size()));
       accumulateResiduals(f, obs, fs, std::vector<int>(obs.size(), 0), s, &sum2, &cnt, &tf.rms_px);
       res.frames.push_back(tf);
       if (progress) progress(k + 1, F);
@@ -255,12 +266,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     res.transfer_failed.assign(m, 0);
     std::vector<double> sum2(m, 0.0);
     std::vector<long> cnt(m, 0);
-    auto record = [&](int k, TrackFrame* tf) {
-      tf->frame = tracks.first_frame + k;
-      tf->R = f.rotation();
-      tf->t = f.translation();
-      tf->beta = f.beta();
-      tf->var_beta = f.ekf().P()(idx::kBeta, idx::kBeta);
+    auto recordPlanes = [&](TrackFrame* tf) {
       for (int j = 0; j < m; ++j) {
         const int b = PlaneModel::planeIndex(j);
         tf->N.push_back(f.ekf().x().segment<3>(b));
@@ -269,7 +275,10 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       }
     };
     TrackFrame t0;
-    record(0, &t0);
+    t0.frame = tracks.first_frame;
+    t0.beta = f.beta();
+    t0.var_beta = f.ekf().P()(idx::kBeta, idx::kBeta);
+    recordPlanes(&t0);
     t0.observed = t0.used = static_cast<int>(ids.size());
     res.frames.push_back(t0);
     for (int k = 1; k < F; ++k) {
@@ -281,21 +290,10 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
           grp.push_back(labels[p.id]);
         }
       const FrameStats fs = f.step(obs);
-      if (!fs.ok()) {
-        res.stopped = stopReason(tracks.first_frame + k, fs, PlaneModel::kMinPoints);
-        break;
-      }
-      if (!(f.beta() > 0.0)) {
-        res.stopped = "frame " + std::to_string(tracks.first_frame + k) +
-                      ": the focal length estimate left the positive range (beta = " + std::to_string(f.beta()) + ")";
-        break;
-      }
-      TrackFrame tf;
-      record(k, &tf);
-      tf.observed = static_cast<int>(obs.size());
-      tf.used = fs.update.used;
-      tf.gated = fs.update.gated;
-      tf.nis_per_dof = fs.update.nis_dof > 0 ? fs.update.nis / fs.update.nis_dof : 0.0;
+      res.stopped = afterStep(f, fs, tracks.first_frame + k);
+      if (!res.stopped.empty()) break;
+      TrackFrame tf = frameOf(f, fs, tracks.first_frame + k, static_cast<int>(obs.size()));
+      recordPlanes(&tf);
       accumulateResiduals(f, obs, fs, grp, s, &sum2, &cnt, &tf.rms_px);
       res.frames.push_back(tf);
       // Tracks born in this frame join their plane, transferred to the reference frame.
