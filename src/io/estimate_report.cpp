@@ -63,10 +63,20 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   j["planes"] = normals;
   j["plane_distances"] = dist;
   j["plane_normal_sd_deg"] = nsd;
-  j["plane_tracks"] = res.plane_tracks;
-  j["plane_new_tracks"] = res.plane_new_tracks;
-  j["plane_transfer_failed"] = res.transfer_failed;
-  j["plane_reprojection_rms_px"] = res.plane_rms_px;
+  if (r.model == TrackModel::Point) {
+    // No planes: the per-plane lists stay empty (the summary schema pairs them with "planes").
+    j["plane_tracks"] = nlohmann::json::array();
+    j["plane_new_tracks"] = nlohmann::json::array();
+    j["plane_transfer_failed"] = nlohmann::json::array();
+    j["plane_reprojection_rms_px"] = nlohmann::json::array();
+    j["point_tracks"] = res.plane_tracks.empty() ? 0 : res.plane_tracks[0];
+    j["reprojection_rms_px"] = res.plane_rms_px.empty() ? 0.0 : res.plane_rms_px[0];
+  } else {
+    j["plane_tracks"] = res.plane_tracks;
+    j["plane_new_tracks"] = res.plane_new_tracks;
+    j["plane_transfer_failed"] = res.transfer_failed;
+    j["plane_reprojection_rms_px"] = res.plane_rms_px;
+  }
   nlohmann::json angles = nlohmann::json::array();
   for (size_t a = 0; a < last.N.size(); ++a)
     for (size_t b = a + 1; b < last.N.size(); ++b)

@@ -121,6 +121,13 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     return l >= 0 && l < plane_limit && spans[id].length() >= o.min_track_frames;
   };
 
+  // Translation process noise relative to the scene's starting depth depth0 / beta0 (the gauge
+  // of both models puts the scene there).
+  if (o.q_trans_rel > 0) {
+    const double sd = o.q_trans_rel * o.depth0 / beta0;
+    fo.q_motion[0] = fo.q_motion[1] = sd * sd;
+    fo.q_motion[2] = sd * sd * beta0 * beta0;
+  }
   if (o.model == TrackModel::Point) {
     std::vector<int> ids;
     for (const auto& p : tracks.frames[0])
@@ -142,8 +149,8 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     P0(idx::kBeta, idx::kBeta) = known_focal ? 0.0 : std::pow(o.beta_sd0 * beta0, 2);
     fixed[idx::kBeta] = known_focal;
     for (int i = 7; i < n; ++i) {
-      x0[i] = 1.0;
-      P0(i, i) = o.depth_sd0 * o.depth_sd0;
+      x0[i] = o.depth0 / beta0;  // every point starts at the gauge depth (as the plane models' frontal start)
+      P0(i, i) = std::pow(o.depth_sd0 * o.depth0 / beta0, 2);
     }
     P0(7, 7) = 0.0;
     fixed[7] = true;  // scale gauge: the first point's depth
@@ -210,11 +217,6 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
   // origin (N_Z = beta0 / depth0), so that every plane in view lies well beyond the A&P origin
   // (which sits 1/beta from the centre of projection) and starts as a frontal plane there.
   const double nz0 = beta0 / o.depth0;
-  if (o.q_trans_rel > 0) {
-    const double sd = o.q_trans_rel * o.depth0 / beta0;
-    fo.q_motion[0] = fo.q_motion[1] = sd * sd;
-    fo.q_motion[2] = sd * sd * beta0 * beta0;
-  }
   std::vector<Eigen::Vector3d> N_start(m, Eigen::Vector3d(0.0, 0.0, nz0));
   if (!o.initial_normals.empty()) {
     if (static_cast<int>(o.initial_normals.size()) != m || o.initial_distance_ratios.size() != o.initial_normals.size())

@@ -50,7 +50,7 @@ struct TrackFilterOptions {
   double q_trans_rel = 0.01;
   std::vector<Eigen::Vector3d> initial_normals;
   std::vector<double> initial_distance_ratios;
-  double depth_sd0 = 1.0;    ///< point model: initial sd of each depth alpha (alpha0 = 1)
+  double depth_sd0 = 0.5;    ///< point model: initial sd of each depth alpha, relative to alpha0 = depth0 / beta0
   int max_point_tracks = 60; ///< point model: reference tracks used at most (O(N^3) per frame)
   /// Passes over the sequence (plane models). Pass p > 1 restarts from the reference frame with
   /// the previous pass's final beta and plane(s) as the initial state (same initial covariance):
