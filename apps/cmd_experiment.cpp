@@ -113,6 +113,8 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   pl->add_option("--q-omega", po.q_omega, "process variance of omega per frame")->capture_default_str();
   pl->add_option("--reference", po.reference_model, "reference positions: exact | inflate | refine")
       ->capture_default_str();
+  pl->add_option("--passes", po.passes, "passes of the plane filters (1: recursive; >1: restart from the last pass's planes and beta)")
+      ->capture_default_str();
   pl->add_option("--iekf-iterations", po.iekf_iterations, "iterations of planes-rigid-iekf (<= 1: no row)")
       ->capture_default_str();
   pl->add_option("--batch", po.batch, "add the batch (Ceres) row (true/false)")->capture_default_str();

@@ -42,7 +42,7 @@ if [ -d "$CUBE" ]; then
 import csv, json, sys
 s = json.load(open(sys.argv[1]))
 worst = max(float(r["rms_px"]) for r in csv.DictReader(open(sys.argv[2])))
-print(f"   poster plane: {s['plane_tracks'][0]} tracks, outliers (cube, others) {s['tracks']['outliers']}, "
+print(f"   poster plane: {s['tracks']['on_planes']} tracks ({s['plane_tracks'][0]} in the filter), outliers (cube, others) {s['tracks']['outliers']}, "
       f"reprojection RMS {s['plane_reprojection_rms_px'][0]:.2f} px overall, {worst:.2f} px worst frame")
 PY
 else

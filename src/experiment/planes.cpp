@@ -74,7 +74,7 @@ FilterOptions filterOptions(const PlanesOptions& o, double noise_px) {
 
 /// Runs a plane filter over all frames on the points `ids` (labels `lab`, planes 0..m-1).
 /// Returns false (and fills failure) on numerical trouble.
-bool runPlaneFilter(const PlanesOptions& o, const FilterOptions& fo,
+bool runPlaneFilterOnce(const PlanesOptions& o, double beta0, const FilterOptions& fo,
                     const std::vector<std::vector<Eigen::Vector2d>>& uv, const std::vector<int>& ids,
                     const std::vector<int>& lab, const std::vector<Eigen::Vector3d>& N0,
                     const std::vector<double>& nvar, int gauge_plane, int gauge_comp, std::vector<Eigen::Matrix3d>* Rs,
@@ -86,7 +86,7 @@ bool runPlaneFilter(const PlanesOptions& o, const FilterOptions& fo,
   for (int id : ids) ref.push_back(uv[0][id]);
   const int n = 7 + 3 * m;
   Eigen::VectorXd x0 = Eigen::VectorXd::Zero(n);
-  x0[idx::kBeta] = o.beta0;
+  x0[idx::kBeta] = beta0;
   Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(n, n);
   P0(idx::kBeta, idx::kBeta) = o.beta_var0;
   std::vector<bool> fixed(n, false);
@@ -101,7 +101,7 @@ bool runPlaneFilter(const PlanesOptions& o, const FilterOptions& fo,
   Rs->assign(1, Eigen::Matrix3d::Identity());
   ts->assign(1, Eigen::Vector3d::Zero());
   Ns->assign(1, N0);
-  betas->assign(1, o.beta0);
+  betas->assign(1, beta0);
   std::vector<Observation> obs(ids.size());
   for (int k = 1; k <= F; ++k) {
     for (size_t i = 0; i < ids.size(); ++i) obs[i] = {static_cast<int>(i), uv[k][ids[i]]};
@@ -121,6 +121,27 @@ bool runPlaneFilter(const PlanesOptions& o, const FilterOptions& fo,
   if (refs) {
     refs->clear();
     for (size_t i = 0; i < ids.size(); ++i) refs->push_back(f.model().reference(static_cast<int>(i)));
+  }
+  return true;
+}
+
+/// The rigid filter over `o.passes` passes: pass p > 1 restarts from the reference frame with the
+/// previous pass's final planes and beta as the initial state (same prior widths), which moves
+/// only the linearization point (as `rsfm estimate --passes`, docs/estimate.md).
+bool runPlaneFilter(const PlanesOptions& o, const FilterOptions& fo,
+                    const std::vector<std::vector<Eigen::Vector2d>>& uv, const std::vector<int>& ids,
+                    const std::vector<int>& lab, const std::vector<Eigen::Vector3d>& N0,
+                    const std::vector<double>& nvar, int gauge_plane, int gauge_comp, std::vector<Eigen::Matrix3d>* Rs,
+                    std::vector<Eigen::Vector3d>* ts, std::vector<std::vector<Eigen::Vector3d>>* Ns,
+                    std::vector<double>* betas, std::vector<Eigen::Vector2d>* refs, std::string* failure) {
+  std::vector<Eigen::Vector3d> N_start = N0;
+  double beta_start = o.beta0;
+  for (int pass = 1; pass <= std::max(1, o.passes); ++pass) {
+    if (!runPlaneFilterOnce(o, beta_start, fo, uv, ids, lab, N_start, nvar, gauge_plane, gauge_comp, Rs, ts, Ns, betas,
+                            refs, failure))
+      return false;
+    N_start = Ns->back();
+    beta_start = betas->back();
   }
   return true;
 }
@@ -353,6 +374,7 @@ TrialOut runTrial(const PlanesOptions& o, const BoxScene& scene, double noise_px
 
 std::string validatePlanesOptions(const PlanesOptions& o) {
   if (auto msg = validateTrialsNoiseFrames(o.trials, o.noise_px, o.scene.frames); !msg.empty()) return msg;
+  if (o.passes < 1 || o.passes > 10) return "--passes must be in 1..10";
   if (o.scene.points_per_face < PlaneModel::kMinPoints) return "--points-per-face must be at least 5";
   if (!(std::abs(o.scene.deg_per_frame * o.scene.frames) < 60.0))
     return "total rotation (--deg-per-frame x --frames) must stay under 60 degrees";

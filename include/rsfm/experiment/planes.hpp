@@ -23,6 +23,9 @@ struct PlanesOptions {
   int trials = 20;
   std::uint64_t seed = 1;
   std::vector<double> noise_px{2.0, 6.0, 10.0};  ///< uniform noise standard deviations (px)
+  /// Passes of the plane filters over the sequence (1: purely recursive; p > 1 restarts from
+  /// the previous pass's final planes and beta, as `rsfm estimate --passes`).
+  int passes = 1;
   BoxSceneOptions scene;
   RotationReading reading = RotationReading::Reset;
   double beta0 = 0.5, beta_var0 = 0.1;  ///< as Table 1
