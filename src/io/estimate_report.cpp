@@ -97,6 +97,20 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   }
   j["gated_observations"] = gated;
   j["accepted_observations"] = used;
+  // Final focal length and normals of every pass (--passes): their spread is an honest measure
+  // of how well the sequence determines them, which the filter's own sd does not capture.
+  j["passes"] = res.passes;
+  j["pass_focal_px"] = res.pass_focal_px;
+  nlohmann::json pn = nlohmann::json::array();
+  for (const auto& Ns : res.pass_N) {
+    nlohmann::json one = nlohmann::json::array();
+    for (const auto& N : Ns) {
+      const MetricPlane mp = metricPlane(N, res.scale_px / res.pass_focal_px[pn.size()]);
+      one.push_back({mp.n.x(), mp.n.y(), mp.n.z()});
+    }
+    pn.push_back(one);
+  }
+  j["pass_planes"] = pn;
   j["stopped"] = res.stopped;
   j["command"] = r.command;
   j["seconds"] = r.seconds;

@@ -2,6 +2,8 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 #include <stdexcept>
@@ -26,16 +28,20 @@ cv::Scalar colourOf(int label) {
 /// back-projected onto the plane (reference frame, A&P coordinates, eq. 12) with the final estimate.
 std::vector<std::vector<Eigen::Vector3d>> planeGrid(const Tracks& tracks, const std::vector<int>& labels, int j,
                                                     const TrackFrame& fin, double s) {
-  double x0 = 1e9, y0 = 1e9, x1 = -1e9, y1 = -1e9;
-  int n = 0;
+  // The grid spans the 5th to 95th percentiles of the plane's reference tracks, so that a few
+  // stray members do not stretch it.
+  std::vector<double> xs, ys;
   for (const auto& p : tracks.frames[0])
     if (p.id < static_cast<int>(labels.size()) && labels[p.id] == j) {
-      x0 = std::min(x0, p.px.x()), y0 = std::min(y0, p.px.y());
-      x1 = std::max(x1, p.px.x()), y1 = std::max(y1, p.px.y());
-      ++n;
+      xs.push_back(p.px.x());
+      ys.push_back(p.px.y());
     }
+  const int n = static_cast<int>(xs.size());
+  if (n < 3) return {};
+  std::sort(xs.begin(), xs.end());
+  std::sort(ys.begin(), ys.end());
+  const double x0 = xs[n / 20], x1 = xs[n - 1 - n / 20], y0 = ys[n / 20], y1 = ys[n - 1 - n / 20];
   std::vector<std::vector<Eigen::Vector3d>> g;
-  if (n < 3) return g;
   const int G = 9;
   g.assign(G, std::vector<Eigen::Vector3d>(G, Eigen::Vector3d::Constant(std::nan(""))));
   for (int a = 0; a < G; ++a)
