@@ -322,10 +322,12 @@ TEST(TrackFilter, LaterTracksJoinThroughTheEstimate) {
   for (double rms : r.plane_rms_px) EXPECT_LT(rms, 0.6);
 }
 
-TEST(AffineLk, RecoversAKnownAffineWarpOfARealImage) {
-  // A real photograph (visp-images-data's Klimt, or a procedural texture when it is absent) warped
-  // by a known affine map; the patch tracker recovers the patch centre to 0.05 px and its corners
-  // (21 x 21 patch) to 0.2 px (0.05-0.14 px observed; issue 5 asks 0.05 px at the corners).
+namespace {
+
+/// A real photograph (visp-images-data's Klimt, or a procedural texture when it is absent) warped
+/// by a known affine map about a point; three 21 x 21 patches aligned from a start 1 px off with
+/// no shape guess. Returns, per patch, the centre error and the largest corner error (px).
+std::vector<std::pair<double, double>> affineWarpErrors(bool cubic) {
   cv::Mat img = cv::imread("/usr/share/visp-images-data/ViSP-images/Klimt/Klimt.pgm", cv::IMREAD_GRAYSCALE);
   if (img.empty()) {
     cv::Mat noise(40, 50, CV_8U);
@@ -341,10 +343,26 @@ TEST(AffineLk, RecoversAKnownAffineWarpOfARealImage) {
   A << 1.06, 0.05, -0.04, 0.95;
   const Eigen::Vector2d d(2.3, -1.7);
   const Eigen::Vector2d t = c + d - A * c;
-  cv::Mat M = (cv::Mat_<double>(2, 3) << A(0, 0), A(0, 1), t.x(), A(1, 0), A(1, 1), t.y());
-  cv::Mat f1;
-  cv::warpAffine(f0, f1, M, f0.size(), cv::INTER_CUBIC, cv::BORDER_REFLECT);
-  int checked = 0;
+  // The warped image, sampled exactly (double-precision bicubic, Keys a = -0.5): cv::warpAffine
+  // quantizes sub-pixel positions to 1/32 px, an error of the test image itself.
+  cv::Mat f1(f0.size(), CV_32F, cv::Scalar(0));
+  const Eigen::Matrix2d Ai = A.inverse();
+  auto keys = [](double u) {
+    u = std::abs(u);
+    return u < 1 ? 1.5 * u * u * u - 2.5 * u * u + 1 : u < 2 ? -0.5 * u * u * u + 2.5 * u * u - 4 * u + 2 : 0.0;
+  };
+  for (int y = 0; y < f1.rows; ++y)
+    for (int x = 0; x < f1.cols; ++x) {
+      const Eigen::Vector2d src = Ai * (Eigen::Vector2d(x, y) - t);
+      const int x0 = static_cast<int>(std::floor(src.x())), y0 = static_cast<int>(std::floor(src.y()));
+      if (x0 < 1 || y0 < 1 || x0 + 2 >= f0.cols || y0 + 2 >= f0.rows) continue;
+      double acc = 0;
+      for (int j = -1; j <= 2; ++j)
+        for (int i = -1; i <= 2; ++i)
+          acc += keys(src.x() - (x0 + i)) * keys(src.y() - (y0 + j)) * f0.at<float>(y0 + j, x0 + i);
+      f1.at<float>(y, x) = static_cast<float>(acc);
+    }
+  std::vector<std::pair<double, double>> out;
   const std::vector<Eigen::Vector2d> centres = {c, c + Eigen::Vector2d(40, 25), c + Eigen::Vector2d(-60, 30)};
   for (const Eigen::Vector2d& p : centres) {
     vision::AffineTemplate tmpl;
@@ -353,19 +371,48 @@ TEST(AffineLk, RecoversAKnownAffineWarpOfARealImage) {
     o.window_sigma = 10;
     o.epsilon_px = 1e-3;
     o.max_iterations = 50;
+    o.cubic = cubic;
     if (!tmpl.init(f0, p, o)) continue;
     Eigen::Matrix2d a = Eigen::Matrix2d::Identity();
-    Eigen::Vector2d b = p + d + Eigen::Vector2d(0.8, -0.6);  // a start 1 px off, no shape guess
+    Eigen::Vector2d b = p + d + Eigen::Vector2d(0.8, -0.6);
     double rms = 0;
-    ASSERT_TRUE(tmpl.align(f1, &a, &b, &rms));
+    if (!tmpl.align(f1, &a, &b, &rms)) {
+      out.emplace_back(1e9, 1e9);
+      continue;
+    }
     const Eigen::Vector2d truth_b = A * p + t;
-    EXPECT_LT((b - truth_b).norm(), 0.05) << "centre of the patch at " << p.transpose();
+    double corner = 0.0;
     for (int sx : {-1, 1})
       for (int sy : {-1, 1}) {
-        const Eigen::Vector2d corner(sx * o.radius, sy * o.radius);
-        EXPECT_LT((a * corner + b - (A * corner + truth_b)).norm(), 0.2) << "corner of the patch at " << p.transpose();
+        const Eigen::Vector2d k(sx * o.radius, sy * o.radius);
+        corner = std::max(corner, (a * k + b - (A * k + truth_b)).norm());
       }
-    ++checked;
+    out.emplace_back((b - truth_b).norm(), corner);
   }
-  EXPECT_GE(checked, 2);
+  return out;
+}
+
+}  // namespace
+
+TEST(AffineLk, RecoversAKnownAffineWarpOfARealImage) {
+  // Bilinear sampling (the tracker's default, for speed): centre within 0.05 px, corners within
+  // 0.2 px (0.06-0.14 px observed; issue 5 asks 0.05 px at the corners).
+  const auto e = affineWarpErrors(false);
+  ASSERT_GE(e.size(), 2u);
+  for (const auto& [centre, corner] : e) {
+    EXPECT_LT(centre, 0.05);
+    EXPECT_LT(corner, 0.2);
+  }
+}
+
+TEST(AffineLk, BicubicSampling) {
+  // Bicubic sampling (AffineLkOptions::cubic): centre within 0.05 px, corners within 0.15 px.
+  // Observed 0.03-0.10 px at the corners: barely better than bilinear, so interpolation is not
+  // what limits the corners; issue 5's 0.05 px at the corners is not reached yet.
+  const auto e = affineWarpErrors(true);
+  ASSERT_GE(e.size(), 2u);
+  for (const auto& [centre, corner] : e) {
+    EXPECT_LT(centre, 0.05);
+    EXPECT_LT(corner, 0.15);
+  }
 }

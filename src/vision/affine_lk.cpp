@@ -19,6 +19,34 @@ inline bool sample(const cv::Mat& img, double x, double y, float* v) {
   return true;
 }
 
+/// Bicubic (Keys, a = -0.5) sample of a CV_32F image; false outside.
+inline bool sampleCubic(const cv::Mat& img, double x, double y, float* v) {
+  if (!(x >= 1.0 && y >= 1.0 && x < img.cols - 2 && y < img.rows - 2)) return false;
+  const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+  const double fx = x - x0, fy = y - y0;
+  auto w = [](double t, double* k) {
+    const double t2 = t * t, t3 = t2 * t;
+    k[0] = -0.5 * t3 + t2 - 0.5 * t;
+    k[1] = 1.5 * t3 - 2.5 * t2 + 1.0;
+    k[2] = -1.5 * t3 + 2.0 * t2 + 0.5 * t;
+    k[3] = 0.5 * t3 - 0.5 * t2;
+  };
+  double kx[4], ky[4];
+  w(fx, kx);
+  w(fy, ky);
+  double acc = 0.0;
+  for (int i = 0; i < 4; ++i) {
+    const float* r = img.ptr<float>(y0 - 1 + i) + x0 - 1;
+    acc += ky[i] * (kx[0] * r[0] + kx[1] * r[1] + kx[2] * r[2] + kx[3] * r[3]);
+  }
+  *v = static_cast<float>(acc);
+  return true;
+}
+
+inline bool sampleWith(bool cubic, const cv::Mat& img, double x, double y, float* v) {
+  return cubic ? sampleCubic(img, x, y, v) : sample(img, x, y, v);
+}
+
 }  // namespace
 
 bool AffineTemplate::init(const cv::Mat& img, const Eigen::Vector2d& c, const AffineLkOptions& o) {
@@ -32,7 +60,7 @@ bool AffineTemplate::init(const cv::Mat& img, const Eigen::Vector2d& c, const Af
   for (int i = 0; i < big; ++i)
     for (int j = 0; j < big; ++j) {
       float v;
-      if (!sample(img, c.x() + j - r - 1, c.y() + i - r - 1, &v)) return false;
+      if (!sampleWith(o.cubic, img, c.x() + j - r - 1, c.y() + i - r - 1, &v)) return false;
       P(i, j) = v;
     }
   x_.resize(n, 2);
@@ -83,7 +111,8 @@ bool AffineTemplate::align(const cv::Mat& img, Eigen::Matrix2d* A, Eigen::Vector
     for (int k = 0; k < n_; ++k) {
       const double X = x_(k, 0), Y = x_(k, 1);
       float v;
-      if (!sample(img, a(0, 0) * X + a(0, 1) * Y + t.x(), a(1, 0) * X + a(1, 1) * Y + t.y(), &v)) return false;
+      if (!sampleWith(o_.cubic, img, a(0, 0) * X + a(0, 1) * Y + t.x(), a(1, 0) * X + a(1, 1) * Y + t.y(), &v))
+        return false;
       iw[k] = v;
     }
     // Gain/bias: normalize the warped image like the template.
