@@ -105,6 +105,8 @@ std::string finishEstimateOptions(EstimateCli* e) {
   return "";
 }
 
+double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
+
 /// Plane finding + filter + report (+ overlay when `overlay_input` is set). Returns the exit code.
 int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::string& overlay_input,
                       vision::FrameRange range, double t_start, bool write_tracks) {
@@ -178,10 +180,11 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
     rep.extra["start"] = {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}};
   rep.extra["plane_finding"] = {{"pair_frame", tracks.first_frame + pf.pair_frame}, {"candidates", cands},
                                 {"manual", !e.finder.rois.empty()}};
+  nlohmann::json summary;
   try {
     io::AtomicFileSet files;
-    rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count() - t_start;
-    io::writeEstimateReport(rep, e.out, &files, e.plots);
+    rep.seconds = now() - t_start;
+    summary = io::writeEstimateReport(rep, e.out, &files, e.plots);
     if (write_tracks) files.write(std::filesystem::path(e.out) / "tracks.csv", io::tracksToString(tracks));
     if (!overlay_input.empty())
       vision::writeOverlay(overlay_input, range, tracks, pf.labels, res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
@@ -192,7 +195,7 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
     return fail(kRuntimeFailure, ex.what());
   }
   if (!e.quiet) {
-    const auto s = io::estimateSummary(rep);
+    const auto& s = summary;
     fmt::print(stderr, "estimate: {} frames, focal {:.1f} +- {:.1f} px", res.frames.size(), s["focal_px"].get<double>(),
                s["focal_sd_px"].get<double>());
     for (const auto& a : s["angles_between_planes_deg"])
@@ -204,8 +207,6 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
   }
   return 0;
 }
-
-double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
 
 }  // namespace
 

@@ -87,9 +87,8 @@ class IndependentPlanesFilter {
   Eigen::Vector3d plane(int j) const { return ekf_.x().segment<3>(IndependentPlanesModel::planeIndex(j)); }
 
  private:
-  /// ReferenceModel::Refine: as RecursiveFilter::refineReferences, with the state at its
-  /// posterior (before omega is folded): S = sigma^2 I + H P+ H^T, C^-1 <- C^-1 + Hu^T S^-1 Hu,
-  /// uv <- uv + C Hu^T S^-1 (z - h).
+  /// ReferenceModel::Refine: as RecursiveFilter::refineReferences (refineReference, with the
+  /// state at its posterior, before omega is folded).
   void refineReferences(const std::vector<Observation>& obs, const std::vector<int>& used,
                         const std::vector<std::uint8_t>& gated) {
     const double s2 = opt_.sigma_uv * opt_.sigma_uv;
@@ -101,14 +100,8 @@ class IndependentPlanesFilter {
       Eigen::MatrixXd H;
       Eigen::Matrix2d Hu;
       if (model_.measure(ekf_.x(), Rg_, o.id, &h, &H, &Hu) != MeasureStatus::Ok) continue;
-      const Eigen::Matrix2d S = s2 * Eigen::Matrix2d::Identity() + H * P * H.transpose();
-      const Eigen::Matrix2d Si = S.inverse();
-      Eigen::Matrix2d& C = ref_cov_[o.id];
-      const Eigen::Matrix2d Cn = (C.inverse() + Hu.transpose() * Si * Hu).inverse();
-      const Eigen::Vector2d step = Cn * (Hu.transpose() * Si * (o.uv - h));
-      if (!Cn.allFinite() || !step.allFinite()) continue;
-      model_.setReference(o.id, model_.reference(o.id) + step);
-      C = 0.5 * (Cn + Cn.transpose());
+      Eigen::Vector2d uv = model_.reference(o.id);
+      if (refineReference(H * P * H.transpose(), s2, Hu, o.uv - h, &uv, &ref_cov_[o.id])) model_.setReference(o.id, uv);
     }
   }
 

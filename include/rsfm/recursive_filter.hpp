@@ -83,6 +83,22 @@ struct FilterOptions {
   double beta_min = 0.0;
 };
 
+/// One reference position's refinement (ReferenceModel::Refine), information form:
+/// S = s2 I + H P+ H^T (given as `HPHt`), C^-1 <- C^-1 + Hu^T S^-1 Hu,
+/// uv <- uv + C Hu^T S^-1 r with r = z - h. Leaves `uv` and `C` unchanged and returns false
+/// when the result is not finite.
+inline bool refineReference(const Eigen::Matrix2d& HPHt, double s2, const Eigen::Matrix2d& Hu,
+                            const Eigen::Vector2d& r, Eigen::Vector2d* uv, Eigen::Matrix2d* C) {
+  // The back-transferred observation is uncertain through the pixel noise and the state.
+  const Eigen::Matrix2d Si = (s2 * Eigen::Matrix2d::Identity() + HPHt).inverse();
+  const Eigen::Matrix2d Cn = (C->inverse() + Hu.transpose() * Si * Hu).inverse();
+  const Eigen::Vector2d step = Cn * (Hu.transpose() * Si * r);
+  if (!Cn.allFinite() || !step.allFinite()) return false;
+  *uv += step;
+  *C = 0.5 * (Cn + Cn.transpose());
+  return true;
+}
+
 /// What one frame did.
 struct FrameStats {
   UpdateStats update;
@@ -284,16 +300,8 @@ class RecursiveFilter {
       Eigen::MatrixXd H;
       if (model_.measure(m, ekf_.x(), o.id, &h, nullptr, nullptr, &Hu) != MeasureStatus::Ok) continue;
       if (model_.measure(ekf_.x(), Rg_, o.id, nullptr, &H) != MeasureStatus::Ok) continue;
-      // The back-transferred observation is uncertain through the pixel noise and the state.
-      const Eigen::Matrix2d S = s2 * Eigen::Matrix2d::Identity() + H * P * H.transpose();
-      const Eigen::Matrix2d Si = S.inverse();
-      Eigen::Matrix2d& C = ref_cov_[o.id];
-      const Eigen::Matrix2d info = C.inverse() + Hu.transpose() * Si * Hu;
-      const Eigen::Matrix2d Cn = info.inverse();
-      const Eigen::Vector2d step = Cn * (Hu.transpose() * Si * (o.uv - h));
-      if (!Cn.allFinite() || !step.allFinite()) continue;
-      model_.setReference(o.id, model_.reference(o.id) + step);
-      C = 0.5 * (Cn + Cn.transpose());
+      Eigen::Vector2d uv = model_.reference(o.id);
+      if (refineReference(H * P * H.transpose(), s2, Hu, o.uv - h, &uv, &ref_cov_[o.id])) model_.setReference(o.id, uv);
     }
   }
 

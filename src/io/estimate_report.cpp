@@ -122,7 +122,7 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   return j;
 }
 
-void writeEstimateReport(const EstimateReport& r, const std::filesystem::path& dir, AtomicFileSet* files,
+nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesystem::path& dir, AtomicFileSet* files,
                          bool plots) {
   const TrackFilterResult& res = *r.result;
   // trajectory.tum
@@ -164,7 +164,8 @@ void writeEstimateReport(const EstimateReport& r, const std::filesystem::path& d
                       r.tracks->first_frame + spans[id].last);
   }
   files->write(dir / "labels.csv", lc);
-  files->write(dir / "summary.json", estimateSummary(r).dump(2) + "\n");
+  nlohmann::json summary = estimateSummary(r);
+  files->write(dir / "summary.json", summary.dump(2) + "\n");
   if (plots) {
     std::vector<std::string> args = {tum_tmp.string(), planes_tmp.string()};
     for (const char* stem : {"motion", "normals", "focal"}) {
@@ -173,6 +174,7 @@ void writeEstimateReport(const EstimateReport& r, const std::filesystem::path& d
     }
     runScript("plot_estimate.py", args);
   }
+  return summary;
 }
 
 }  // namespace rsfm::io

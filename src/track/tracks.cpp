@@ -11,11 +11,13 @@ int Tracks::idBound() const {
   return b;
 }
 
+const TrackPoint* findById(const std::vector<TrackPoint>& points, int id) {
+  auto it = std::lower_bound(points.begin(), points.end(), id, [](const TrackPoint& p, int v) { return p.id < v; });
+  return (it != points.end() && it->id == id) ? &*it : nullptr;
+}
+
 const TrackPoint* Tracks::find(int k, int id) const {
-  if (k < 0 || k >= numFrames()) return nullptr;
-  const auto& f = frames[k];
-  auto it = std::lower_bound(f.begin(), f.end(), id, [](const TrackPoint& p, int v) { return p.id < v; });
-  return (it != f.end() && it->id == id) ? &*it : nullptr;
+  return (k < 0 || k >= numFrames()) ? nullptr : findById(frames[k], id);
 }
 
 std::vector<TrackSpan> trackSpans(const Tracks& t) {

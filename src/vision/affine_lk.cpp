@@ -66,7 +66,7 @@ bool AffineTemplate::init(const cv::Mat& img, const Eigen::Vector2d& c, const Af
   x_.resize(n, 2);
   t_.resize(n);
   w_.resize(n);
-  sd_.resize(n, 6);
+  Eigen::Matrix<float, Eigen::Dynamic, 6> steep(n, 6);  // steepest-descent images
   Eigen::VectorXf gx(n), gy(n);
   for (int i = 0; i < side; ++i)
     for (int j = 0; j < side; ++j) {
@@ -89,10 +89,10 @@ bool AffineTemplate::init(const cv::Mat& img, const Eigen::Vector2d& c, const Af
   // Parameters p = (a11 - 1, a21, a12, a22 - 1, b1, b2): dW/dp at p = 0.
   for (int k = 0; k < n; ++k) {
     const float X = x_(k, 0), Y = x_(k, 1);
-    sd_.row(k) << gx[k] * X, gy[k] * X, gx[k] * Y, gy[k] * Y, gx[k], gy[k];
+    steep.row(k) << gx[k] * X, gy[k] * X, gx[k] * Y, gy[k] * Y, gx[k], gy[k];
   }
-  sdw_ = w_.asDiagonal() * sd_;
-  const Eigen::Matrix<double, 6, 6> H = (sdw_.transpose() * sd_).cast<double>();
+  sdw_ = w_.asDiagonal() * steep;
+  const Eigen::Matrix<double, 6, 6> H = (sdw_.transpose() * steep).cast<double>();
   Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(H);
   if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 1e-6 * ldlt.vectorD().maxCoeff())) return false;
   hinv_ = ldlt.solve(Eigen::Matrix<double, 6, 6>::Identity());

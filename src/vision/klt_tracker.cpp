@@ -147,12 +147,7 @@ void KltTracker::process(const cv::Mat& frame) {
   frames_.push_back(cur_);
   if (o_.anchor) {  // forget the templates of tracks that ended
     for (auto it = anchors_.begin(); it != anchors_.end();) {
-      const bool live = std::binary_search(cur_.begin(), cur_.end(), it->first,
-                                           [](const auto& a, const auto& b) {
-                                             if constexpr (std::is_same_v<std::decay_t<decltype(a)>, int>) return a < b.id;
-                                             else return a.id < b;
-                                           });
-      it = live ? std::next(it) : anchors_.erase(it);
+      it = findById(cur_, it->first) ? std::next(it) : anchors_.erase(it);
     }
   }
   prev_pyr_ = std::move(pyr);

@@ -30,9 +30,9 @@ void poseOf(const TrackFrame& f, Eigen::Vector3d* position, Eigen::Quaterniond* 
 /// The summary as JSON (also what summary.json holds).
 nlohmann::json estimateSummary(const EstimateReport& r);
 
-/// Writes every file into `files` (temporaries under `dir`; the caller commits). Throws
-/// std::runtime_error with a one-line message (e.g. the plot failed).
-void writeEstimateReport(const EstimateReport& r, const std::filesystem::path& dir, AtomicFileSet* files,
+/// Writes every file into `files` (temporaries under `dir`; the caller commits) and returns the
+/// summary it wrote. Throws std::runtime_error with a one-line message (e.g. the plot failed).
+nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesystem::path& dir, AtomicFileSet* files,
                          bool plots = true);
 
 }  // namespace rsfm::io

@@ -23,6 +23,9 @@ struct TrackPoint {
   Eigen::Vector2d px = Eigen::Vector2d::Zero();  ///< position in pixels
 };
 
+/// The point with track id `id` in `points` (sorted by id), or nullptr.
+const TrackPoint* findById(const std::vector<TrackPoint>& points, int id);
+
 /// Tracks of one sequence. frames[k] holds the points seen in frame first_frame + k, sorted by id.
 struct Tracks {
   ImageInfo image;

@@ -38,8 +38,7 @@ class AffineTemplate {
   Eigen::Matrix<float, Eigen::Dynamic, 2> x_;    // template coordinates
   Eigen::VectorXf t_;                // normalized template (zero mean, unit sd)
   Eigen::VectorXf w_;                // window weights
-  Eigen::Matrix<float, Eigen::Dynamic, 6> sd_;   // steepest-descent images
-  Eigen::Matrix<float, Eigen::Dynamic, 6> sdw_;  // the same, times the window
+  Eigen::Matrix<float, Eigen::Dynamic, 6> sdw_;  // steepest-descent images times the window
   Eigen::Matrix<double, 6, 6> hinv_;
 };
 
