@@ -1,0 +1,269 @@
+// Calway's affine-patch model (DESIGN.md §5): both measurement functions and the Murray-Shapiro
+// transition against geometry and against central differences (the shared checker), including
+// near-singular cases; the exact and instantaneous forms agree to first order in the motion.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <cmath>
+
+#include "jacobian_checker.hpp"
+#include "rsfm/models/patch_model.hpp"
+#include "rsfm/rotation.hpp"
+
+namespace rsfm {
+namespace {
+
+using test::expectJacobian;
+using Motion = Eigen::Matrix<double, 7, 1>;
+
+Motion motion(double tx, double ty, double tzb, double wx, double wy, double wz, double beta) {
+  return (Motion() << tx, ty, tzb, wx, wy, wz, beta).finished();
+}
+
+/// Image point (A&P: u = X / (1 + beta Z)) of a 3-D point.
+Eigen::Vector2d project(const Eigen::Vector3d& X, double beta) { return X.head<2>() / (1.0 + beta * X.z()); }
+
+/// The 3-D point of plane s (current frame) seen at image point c: Z = g / (1 - beta g).
+Eigen::Vector3d backProject(const Eigen::Vector3d& s, double beta, const Eigen::Vector2d& c) {
+  const double Z = PatchModel::depthAt(s, beta, c);
+  return {c.x() * (1.0 + beta * Z), c.y() * (1.0 + beta * Z), Z};
+}
+
+/// Image map previous -> current of plane s under motion m, through 3-D points.
+Eigen::Vector2d mapThroughPoints(const Motion& m, const Eigen::Vector3d& s, const Eigen::Vector2d& c) {
+  const double beta = m[6];
+  const Eigen::Vector3d t(m[0], m[1], m[2] / beta);
+  const Eigen::Matrix3d R = incrementalRotation(m.segment<3>(3));
+  return project(t + R * backProject(s, beta, c), beta);
+}
+
+void checkMeasurementJacobians(const Motion& m, const Eigen::Vector3d& s, const Eigen::Vector2d& c,
+                               const std::string& what, double tol = 1e-6) {
+  for (AffineMeasurement kind : {AffineMeasurement::Exact, AffineMeasurement::Instantaneous}) {
+    Vector6d z;
+    PatchJacobian<6> J;
+    ASSERT_EQ(PatchModel::measure(kind, m, s, c, &z, &J), MeasureStatus::Ok) << what;
+    Eigen::VectorXd x(10);
+    x << m, s;
+    auto f = [&](const Eigen::VectorXd& xx, Eigen::VectorXd* out) {
+      Vector6d zz;
+      if (PatchModel::measure(kind, xx.head<7>(), xx.tail<3>(), c, &zz, nullptr) != MeasureStatus::Ok) return false;
+      *out = zz;
+      return true;
+    };
+    expectJacobian(f, x, J, tol, what + (kind == AffineMeasurement::Exact ? " (exact)" : " (instantaneous)"));
+  }
+}
+
+void checkPropagateJacobian(const Motion& m, const Eigen::Vector3d& s, const std::string& what,
+                            double tol = 1e-6) {
+  Eigen::Vector3d s1;
+  PatchJacobian<3> J;
+  ASSERT_EQ(PatchModel::propagate(m, s, &s1, &J), MeasureStatus::Ok) << what;
+  Eigen::VectorXd x(10);
+  x << m, s;
+  auto f = [&](const Eigen::VectorXd& xx, Eigen::VectorXd* out) {
+    Eigen::Vector3d o;
+    if (PatchModel::propagate(xx.head<7>(), xx.tail<3>(), &o, nullptr) != MeasureStatus::Ok) return false;
+    *out = o;
+    return true;
+  };
+  expectJacobian(f, x, J, tol, what + " (transition)");
+}
+
+const Motion kGeneric = motion(0.02, -0.015, 0.03, 0.01, -0.02, 0.015, 0.9);
+const Eigen::Vector3d kS{0.3, -0.2, 0.6};
+const Eigen::Vector2d kC{0.12, -0.08};
+
+TEST(PatchModelJacobian, Generic) {
+  checkMeasurementJacobians(kGeneric, kS, kC, "generic");
+  checkPropagateJacobian(kGeneric, kS, "generic");
+}
+
+TEST(PatchModelJacobian, OmegaZero) {
+  const Motion m = motion(0.02, -0.015, 0.03, 0.0, 0.0, 0.0, 0.9);
+  checkMeasurementJacobians(m, kS, kC, "omega = 0");
+  checkPropagateJacobian(m, kS, "omega = 0");
+  checkMeasurementJacobians(motion(0, 0, 0, 0, 0, 0, 1.0), kS, kC, "no motion");
+  checkPropagateJacobian(motion(0, 0, 0, 0, 0, 0, 1.0), kS, "no motion");
+}
+
+TEST(PatchModelJacobian, LargeOmega) {
+  const Motion m = motion(0.1, 0.05, -0.08, 0.5, -0.4, 0.3, 1.2);
+  checkMeasurementJacobians(m, kS, kC, "large omega");
+  checkPropagateJacobian(m, kS, "large omega");
+}
+
+TEST(PatchModelJacobian, SmallBeta) {
+  // beta = 0.02: a 50-unit focal length (narrow field of view); t_Z = (t_Z beta) / beta is large.
+  const Motion m = motion(0.02, -0.015, 0.001, 0.01, -0.02, 0.015, 0.02);
+  checkMeasurementJacobians(m, {0.3, -0.2, 5.0}, kC, "small beta");
+  checkPropagateJacobian(m, {0.3, -0.2, 5.0}, "small beta");
+}
+
+TEST(PatchModelJacobian, NearHorizonAndFarAway) {
+  // 1 - beta g = 0.01: the patch centre is ~100 focal lengths away (g close to 1/beta).
+  const double beta = 1.0;
+  const Eigen::Vector2d c(0.1, 0.05);
+  const Eigen::Vector3d s(0.2, 0.1, 0.99 + 0.2 * 0.1 + 0.1 * 0.05);
+  ASSERT_NEAR(1.0 - beta * (s[2] - s[0] * c.x() - s[1] * c.y()), 0.01, 1e-12);
+  const Motion m = motion(0.002, -0.001, 0.001, 0.001, -0.002, 0.001, beta);
+  checkMeasurementJacobians(m, s, c, "far patch", 1e-5);
+  checkPropagateJacobian(m, s, "far patch", 1e-5);
+  // A plane seen nearly edge-on: large p1 (sigma = n_3 + beta d small relative to n_1).
+  const Eigen::Vector3d grazing(20.0, 0.0, 2.1);
+  checkMeasurementJacobians(m, grazing, c, "grazing plane", 1e-5);
+  checkPropagateJacobian(m, grazing, "grazing plane", 1e-5);
+}
+
+TEST(PatchModelJacobian, PlaneNearlyThroughOrigin) {
+  // d ~ 0: the plane passes (nearly) through the image-plane origin, p4 ~ 0. The normalized
+  // parameters have no singularity there (unlike N . X = 1 of the plane model).
+  const Eigen::Vector3d s(0.4, -0.3, 1e-9);
+  checkMeasurementJacobians(kGeneric, s, kC, "plane through origin");
+  checkPropagateJacobian(kGeneric, s, "plane through origin");
+}
+
+TEST(PatchModel, ExactMeasurementMatchesPointGeometry) {
+  // h is where the centre's 3-D point goes; A is the derivative of the point map (central
+  // differences through 3-D points, independent of the homography algebra).
+  for (const Motion& m : {kGeneric, motion(0.1, 0.05, -0.08, 0.5, -0.4, 0.3, 1.2)}) {
+    Vector6d z;
+    ASSERT_EQ(PatchModel::exact(m, kS, kC, &z, nullptr), MeasureStatus::Ok);
+    const Eigen::Vector2d h = mapThroughPoints(m, kS, kC);
+    EXPECT_NEAR((z.head<2>() - h).norm(), 0.0, 1e-12);
+    const double e = 1e-6;
+    for (int j = 0; j < 2; ++j) {
+      const Eigen::Vector2d d = Eigen::Vector2d::Unit(j) * e;
+      const Eigen::Vector2d col = (mapThroughPoints(m, kS, kC + d) - mapThroughPoints(m, kS, kC - d)) / (2 * e);
+      EXPECT_NEAR(z[2 + j], col.x(), 1e-8);
+      EXPECT_NEAR(z[4 + j], col.y(), 1e-8);
+    }
+  }
+}
+
+TEST(PatchModel, ExactAndInstantaneousAgreeToFirstOrder) {
+  // Motion scaled by eps: the flows (z - (c, I)) agree to O(eps^2), so their difference shrinks
+  // four times when eps halves, and relative to the flow it vanishes with eps.
+  const Motion unit = motion(0.4, -0.3, 0.5, 0.2, -0.3, 0.25, 0.9);
+  const Vector6d base = (Vector6d() << kC, 1, 0, 0, 1).finished();
+  double prev = -1.0;
+  for (double eps : {1e-2, 5e-3, 2.5e-3, 1.25e-3}) {
+    Motion m = unit;
+    m.head<6>() *= eps;
+    Vector6d ze, zi;
+    ASSERT_EQ(PatchModel::exact(m, kS, kC, &ze, nullptr), MeasureStatus::Ok);
+    ASSERT_EQ(PatchModel::instantaneous(m, kS, kC, &zi, nullptr), MeasureStatus::Ok);
+    const double diff = (ze - zi).norm(), flow = (ze - base).norm();
+    EXPECT_LT(diff, 0.02 * flow * (eps / 1e-2)) << "eps " << eps;
+    if (prev > 0) {
+      EXPECT_NEAR(prev / diff, 4.0, 0.3) << "eps " << eps;
+    }
+    prev = diff;
+  }
+  // And their Jacobians coincide at zero motion.
+  PatchJacobian<6> Je, Ji;
+  const Motion still = motion(0, 0, 0, 0, 0, 0, 0.9);
+  ASSERT_EQ(PatchModel::exact(still, kS, kC, nullptr, &Je), MeasureStatus::Ok);
+  ASSERT_EQ(PatchModel::instantaneous(still, kS, kC, nullptr, &Ji), MeasureStatus::Ok);
+  EXPECT_LT((Je - Ji).cwiseAbs().maxCoeff(), 1e-12);
+}
+
+TEST(PatchModel, TransitionCarriesThePlaneWithTheCamera) {
+  // Points of the patch plane, moved by the motion, lie on the propagated plane.
+  const Motion m = motion(0.1, 0.05, -0.08, 0.2, -0.15, 0.1, 1.1);
+  Eigen::Vector3d s1;
+  ASSERT_EQ(PatchModel::propagate(m, kS, &s1, nullptr), MeasureStatus::Ok);
+  const double beta = m[6];
+  const Eigen::Vector3d t(m[0], m[1], m[2] / beta);
+  const Eigen::Matrix3d R = incrementalRotation(m.segment<3>(3));
+  for (const Eigen::Vector2d& c : {Eigen::Vector2d(0.1, 0.2), Eigen::Vector2d(-0.3, 0.05), Eigen::Vector2d(0, 0)}) {
+    const Eigen::Vector3d X1 = t + R * backProject(kS, beta, c);
+    const Eigen::Vector2d c1 = project(X1, beta);
+    EXPECT_NEAR(PatchModel::depthAt(s1, beta, c1), X1.z(), 1e-12);
+  }
+  // Normal: n' = R n.
+  EXPECT_LT((PatchModel::normal(s1, beta) - R * PatchModel::normal(kS, beta)).norm(), 1e-12);
+}
+
+Eigen::VectorXd threePatchState() {
+  Eigen::VectorXd x(16);
+  x << kGeneric, kS, 0.1, 0.05, 0.8, -0.2, 0.3, 0.4;
+  return x;
+}
+
+TEST(PatchModel, RegaugeLeavesEveryMeasurementUnchanged) {
+  // Rescaling the scene about the centre of projection (with the translation) changes no image.
+  const Eigen::VectorXd x = threePatchState();
+  Eigen::VectorXd y;
+  const double lambda = PatchModel::regauge(x, 1, 0.65, &y, nullptr);
+  ASSERT_GT(lambda, 0.0);
+  EXPECT_NE(lambda, 1.0);
+  EXPECT_DOUBLE_EQ(y[PatchModel::p4Index(1)], 0.65);
+  const std::vector<Eigen::Vector2d> cs{kC, {-0.2, 0.1}, {0.05, 0.3}};
+  // (The instantaneous form is first order in a translation taken about the image-plane origin,
+  // so it is invariant only to first order; the exact form is invariant.)
+  for (int k = 0; k < 3; ++k) {
+    Vector6d z0, z1;
+    ASSERT_EQ(PatchModel::exact(x.head<7>(), x.segment<3>(7 + 3 * k), cs[k], &z0, nullptr), MeasureStatus::Ok);
+    ASSERT_EQ(PatchModel::exact(y.head<7>(), y.segment<3>(7 + 3 * k), cs[k], &z1, nullptr), MeasureStatus::Ok);
+    EXPECT_LT((z0 - z1).norm(), 1e-12) << "patch " << k;
+  }
+  // Normals do not change; depths scale about the centre of projection: Z + 1/beta -> (Z + 1/beta) / lambda.
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_LT((PatchModel::normal(x.segment<3>(7 + 3 * k), x[6]) - PatchModel::normal(y.segment<3>(7 + 3 * k), y[6])).norm(), 1e-12);
+    const double z0 = PatchModel::depthAt(x.segment<3>(7 + 3 * k), x[6], cs[k]) + 1.0 / x[6];
+    const double z1 = PatchModel::depthAt(y.segment<3>(7 + 3 * k), y[6], cs[k]) + 1.0 / y[6];
+    EXPECT_NEAR(z1, z0 / lambda, 1e-12);
+  }
+}
+
+TEST(PatchModelJacobian, RegaugeAndWholeTransition) {
+  const Eigen::VectorXd x = threePatchState();
+  for (double c : {0.65, x[PatchModel::p4Index(1)]}) {
+    Eigen::VectorXd y;
+    Eigen::MatrixXd G;
+    ASSERT_GT(PatchModel::regauge(x, 1, c, &y, &G), 0.0);
+    auto f = [&](const Eigen::VectorXd& xx, Eigen::VectorXd* out) {
+      return PatchModel::regauge(xx, 1, c, out, nullptr) > 0.0;
+    };
+    expectJacobian(f, x, G, 1e-6, "regauge");
+    EXPECT_EQ(G.row(PatchModel::p4Index(1)).norm(), 0.0);
+  }
+  const PatchModel model({kC, {-0.2, 0.1}, {0.05, 0.3}});
+  const double c = x[PatchModel::p4Index(0)];
+  Eigen::VectorXd y;
+  Eigen::MatrixXd F;
+  double lambda = 0;
+  ASSERT_EQ(model.transition(x, 0, c, &y, &F, &lambda), MeasureStatus::Ok);
+  EXPECT_NEAR(y[PatchModel::p4Index(0)], c, 1e-15);
+  auto f = [&](const Eigen::VectorXd& xx, Eigen::VectorXd* out) {
+    return model.transition(xx, 0, c, out, nullptr, nullptr) == MeasureStatus::Ok;
+  };
+  expectJacobian(f, x, F, 1e-6, "whole transition");
+  Eigen::VectorXd x0 = x;
+  x0.segment<3>(3).setZero();
+  ASSERT_EQ(model.transition(x0, 0, c, &y, &F, &lambda), MeasureStatus::Ok);
+  auto f0 = [&](const Eigen::VectorXd& xx, Eigen::VectorXd* out) {
+    return model.transition(xx, 0, c, out, nullptr, nullptr) == MeasureStatus::Ok;
+  };
+  expectJacobian(f0, x0, F, 1e-6, "whole transition, omega = 0");
+}
+
+TEST(PatchModel, ReportsInvisiblePlanesAndBadState) {
+  Vector6d z;
+  // 1 - beta g <= 0: the centre is at or behind the centre of projection.
+  EXPECT_EQ(PatchModel::exact(kGeneric, {0, 0, 1.0 / 0.9 + 0.1}, kC, &z, nullptr), MeasureStatus::BehindCamera);
+  EXPECT_EQ(PatchModel::instantaneous(kGeneric, {0, 0, 1.0 / 0.9 + 0.1}, kC, &z, nullptr),
+            MeasureStatus::BehindCamera);
+  EXPECT_EQ(PatchModel::exact(motion(0, 0, 0, 0, 0, 0, -1), kS, kC, &z, nullptr), MeasureStatus::BehindCamera);
+  EXPECT_EQ(PatchModel::exact(motion(0, 0, 0, 2, 0, 0, 1), kS, kC, &z, nullptr), MeasureStatus::InvalidRotation);
+  EXPECT_EQ(PatchModel::exact(motion(NAN, 0, 0, 0, 0, 0, 1), kS, kC, &z, nullptr), MeasureStatus::NonFinite);
+  Eigen::Vector3d s1;
+  // A plane that the motion puts behind the new camera.
+  EXPECT_EQ(PatchModel::propagate(motion(0, 0, -5.0, 0, 0, 0, 1.0), {0, 0, 0.5}, &s1, nullptr),
+            MeasureStatus::BehindCamera);
+}
+
+}  // namespace
+}  // namespace rsfm
