@@ -95,6 +95,14 @@ void Ekf::augment(const Eigen::VectorXd& x_new, const Eigen::MatrixXd& P_new,
   for (int i = 0; i < k; ++i) fixed_.push_back(fixed);
 }
 
+void Ekf::setFixed(int i, bool fixed) {
+  fixed_[i] = fixed;
+  if (fixed) {
+    P_.row(i).setZero();
+    P_.col(i).setZero();
+  }
+}
+
 void Ekf::remove(const std::vector<int>& indices) {
   std::vector<bool> drop(size(), false);
   for (int i : indices) drop.at(i) = true;

@@ -109,6 +109,8 @@ class Ekf {
   /// with the existing state (rows: new components).
   void augment(const Eigen::VectorXd& x_new, const Eigen::MatrixXd& P_new,
                const Eigen::MatrixXd& P_cross, bool fixed = false);
+  /// Marks component i as fixed (its row and column of P are zeroed) or free.
+  void setFixed(int i, bool fixed);
   /// Removes the listed components (e.g. lost features).
   void remove(const std::vector<int>& indices);
 

@@ -118,8 +118,8 @@ class PatchModel {
   MeasureStatus transition(const Eigen::VectorXd& x, int gauge, double gauge_value, Eigen::VectorXd* x_new,
                            Eigen::MatrixXd* F, double* lambda) const;
 
-  /// Unit normal (current frame) of structure s: n ∝ (p1, p2, 1 - beta p4), oriented towards the
-  /// camera side (n_z > 0 in the sense of sigma > 0).
+  /// Unit normal (current frame) of structure s: n ∝ (p1, p2, 1 - beta p4) = (n1, n2, n3) / sigma,
+  /// so it points away from the camera (sigma = beta times the signed COP-to-plane distance > 0).
   static Eigen::Vector3d normal(const Eigen::Vector3d& s, double beta);
   /// Depth Z (A&P, current frame) of the patch plane on the ray through image point c.
   static double depthAt(const Eigen::Vector3d& s, double beta, const Eigen::Vector2d& c);

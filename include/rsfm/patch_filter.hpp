@@ -1,0 +1,123 @@
+#pragma once
+// Calway's affine-patch filter (seed 003; DESIGN.md §5): an EKF over the state of PatchModel,
+// 7 + 3K, with a nonlinear transition. One step, for the measurements of frame k:
+//   1. predict the inter-frame motion (identity dynamics: P += Q on the motion and beta; the
+//      structure gets q_structure);
+//   2. update with each patch's 6 affine parameters (about its centre in frame k-1), chi-square
+//      gated per patch (6 dof);
+//   3. carry every patch's centre into frame k (the posterior's predicted centre, or the measured
+//      one: PatchFilterOptions::filtered_centres) and accumulate the camera pose;
+//   4. carry the structure into frame k by the Murray-Shapiro transition followed by the scale
+//      gauge (PatchModel::transition): x <- f(x), P <- F P F^T.
+// Scale gauge: one patch's p4 is held fixed (zero variance). In every frame the scene is rescaled
+// about the centre of projection so that this p4 keeps its value; `scale()` accumulates the
+// factors so that poses are reported in the units of the first frame. When the gauge patch is
+// removed, the gauge moves to the remaining patch with the smallest p4 variance, by the same
+// rescaling with lambda = 1 (values unchanged, covariance transformed by its Jacobian).
+#include <Eigen/Core>
+#include <cstdint>
+#include <vector>
+
+#include "rsfm/ekf.hpp"
+#include "rsfm/models/patch_model.hpp"
+
+namespace rsfm {
+
+/// Tuning of the patch filter. Units: normalized image units (DESIGN §1), the gauge's scene units.
+struct PatchFilterOptions {
+  AffineMeasurement measurement = AffineMeasurement::Exact;
+  /// Measurement standard deviations of (h_u, h_v, A_11, A_12, A_21, A_22): the centre in
+  /// normalized units (default 0.5 px at s = 256), the entries of the 2x2 map unitless.
+  Vector6d measurement_sd = (Vector6d() << 0.5 / 256.0, 0.5 / 256.0, 0.005, 0.005, 0.005, 0.005).finished();
+  /// Per-frame process variances of the inter-frame motion (t_X, t_Y, t_Z beta, omega_X,
+  /// omega_Y, omega_Z) and beta: identity dynamics (constant velocity), so they must cover the
+  /// change of one frame's motion from frame to frame.
+  Eigen::Matrix<double, 7, 1> q_motion =
+      (Eigen::Matrix<double, 7, 1>() << 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 0.0).finished();
+  /// Per-frame process variance of each free structure component (p1, p2, p4).
+  double q_structure = 0.0;
+  UpdateOptions update;  ///< gating (per patch, 6 dof), form, minimum patches (>= kMinPatches)
+  /// True: after each update a patch's centre becomes the posterior's predicted centre (the
+  /// tracker's measurement blended with the prediction); false: the measured centre.
+  bool filtered_centres = true;
+  double beta_min = 0.0;  ///< lower bound on beta, as FilterOptions::beta_min (0: none)
+  /// Iterated EKF: Gauss-Newton relinearizations of the measurement per frame (1 = plain EKF);
+  /// stops when the step (infinity norm) falls below iteration_tol.
+  int iterations = 1;
+  double iteration_tol = 1e-10;
+  /// Warm-up: the first warmup_frames frames use max(iterations, warmup_iterations). The first
+  /// frames linearize at a motion prior of zero, far from the truth; one plain update there
+  /// collapses P around a poor linearization (beta then stays 30-40 % off in the sphere scene).
+  int warmup_frames = 0;
+  int warmup_iterations = 10;
+  /// Annealing: frame k <= anneal_frames uses R multiplied by
+  /// 1 + (anneal_factor - 1) (1 - (k - 1) / anneal_frames), so the first frames, linearized far
+  /// from the truth (zero motion, fronto-parallel patches, a wrong beta), inform the state softly.
+  int anneal_frames = 0;
+  double anneal_factor = 1.0;
+};
+
+struct PatchFrameStats {
+  UpdateStats update;
+  int invalid = 0;  ///< observations whose prediction failed (left out)
+  MeasureStatus first_problem = MeasureStatus::Ok;
+  MeasureStatus transition = MeasureStatus::Ok;  ///< status of the structure transition
+  double lambda = 1.0;  ///< scale factor of this frame's gauge rescaling
+  std::uint32_t health = kHealthy;
+  bool beta_projected = false;
+  int iterations = 1;  ///< measurement linearizations used
+  bool ok() const { return health == kHealthy && update.applied && transition == MeasureStatus::Ok; }
+};
+
+class PatchFilter {
+ public:
+  /// `ekf` holds the state 7 + 3K in the model's patch order; `gauge` is the patch whose p4 is
+  /// fixed (its covariance row must be zero: it is marked fixed here).
+  PatchFilter(PatchModel model, Ekf ekf, int gauge, PatchFilterOptions options);
+
+  /// One frame. `obs[i].id` is a patch slot; patches without an observation keep their centre
+  /// moved by the prediction.
+  PatchFrameStats step(const std::vector<AffineObservation>& obs);
+
+  /// Adds a patch centred at `centre` (current frame) with prior structure s0 and covariance P0
+  /// (no cross-covariance with the state). Returns its slot.
+  int addPatch(const Eigen::Vector2d& centre, const Eigen::Vector3d& s0, const Eigen::Matrix3d& P0);
+  /// Removes a patch (slots above it shift down by one). Moves the gauge first if it is the gauge
+  /// patch. Returns false when it is the last patch.
+  bool removePatch(int slot);
+
+  const PatchModel& model() const { return model_; }
+  const Ekf& ekf() const { return ekf_; }
+  Ekf& mutableEkf() { return ekf_; }
+  const PatchFilterOptions& options() const { return opt_; }
+  int gauge() const { return gauge_; }
+  int numPatches() const { return model_.numPatches(); }
+  double beta() const { return ekf_.x()[6]; }
+  Eigen::Vector3d structure(int k) const { return ekf_.x().segment<3>(PatchModel::structureIndex(k)); }
+  /// Unit normal of patch k in the current camera frame.
+  Eigen::Vector3d normal(int k) const { return PatchModel::normal(structure(k), beta()); }
+  /// One current scene unit in first-frame units (product of the gauge rescalings).
+  double scale() const { return scale_; }
+  /// Camera pose after the last step, centre-of-projection coordinates in first-frame units:
+  /// X_cam = rotation() X_ref + translation() (X in the first camera's COP-centred frame).
+  const Eigen::Matrix3d& rotation() const { return R_; }
+  const Eigen::Vector3d& translation() const { return T_; }
+
+ private:
+  void linearize(const Eigen::VectorXd& x, const std::vector<AffineObservation>& obs, MeasurementBatch* batch,
+                 std::vector<int>* used, PatchFrameStats* fs) const;
+  void iterate(int iterations, const std::vector<AffineObservation>& obs, const std::vector<int>& used,
+               const Eigen::VectorXd& x_prior, const Eigen::MatrixXd& P_prior, PatchFrameStats* fs);
+
+  PatchModel model_;
+  int steps_ = 0;
+  Ekf ekf_;
+  int gauge_ = 0;
+  double gauge_value_ = 0.0;
+  PatchFilterOptions opt_;
+  double scale_ = 1.0;
+  Eigen::Matrix3d R_ = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d T_ = Eigen::Vector3d::Zero();
+};
+
+}  // namespace rsfm

@@ -1,0 +1,256 @@
+// Calway's affine-patch filter (seed 003; DESIGN.md §5). See patch_filter.hpp.
+#include "rsfm/patch_filter.hpp"
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#include "rsfm/rotation.hpp"
+
+namespace rsfm {
+
+PatchFilter::PatchFilter(PatchModel model, Ekf ekf, int gauge, PatchFilterOptions options)
+    : model_(std::move(model)), ekf_(std::move(ekf)), gauge_(gauge), opt_(options) {
+  if (ekf_.size() != model_.stateDim()) throw std::invalid_argument("patch filter: state size does not match the patches");
+  if (gauge < 0 || gauge >= model_.numPatches()) throw std::invalid_argument("patch filter: gauge patch out of range");
+  opt_.update.min_blocks = std::max(opt_.update.min_blocks, PatchModel::kMinPatches);
+  ekf_.setFixed(PatchModel::p4Index(gauge_), true);
+  gauge_value_ = ekf_.x()[PatchModel::p4Index(gauge_)];
+}
+
+PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
+  PatchFrameStats fs;
+  const int n = ekf_.size();
+  // 1. Prediction of the motion (identity dynamics) and structure noise.
+  Eigen::VectorXd q = Eigen::VectorXd::Constant(n, opt_.q_structure);
+  q.head<7>() = opt_.q_motion;
+  ekf_.predict(q);
+  ++steps_;
+  // 2. Update: one 6-row block per observed patch.
+  std::vector<int> used;
+  MeasurementBatch batch;
+  linearize(ekf_.x(), obs, &batch, &used, &fs);
+  const Eigen::VectorXd x_prior = ekf_.x();
+  const Eigen::MatrixXd P_prior = ekf_.P();
+  fs.update = ekf_.update(batch, opt_.update);
+  const int iterations = steps_ <= opt_.warmup_frames ? std::max(opt_.iterations, opt_.warmup_iterations) : opt_.iterations;
+  if (iterations > 1 && fs.update.applied) iterate(iterations, obs, used, x_prior, P_prior, &fs);
+  fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
+  if (opt_.beta_min > 0.0 && fs.update.applied && ekf_.x()[6] < opt_.beta_min && ekf_.P()(6, 6) > 0.0) {
+    const Eigen::VectorXd col = ekf_.P().col(6);
+    ekf_.mutableX() += col * ((opt_.beta_min - ekf_.x()[6]) / col[6]);
+    fs.beta_projected = true;
+  }
+  if (!incrementalRotationValid(ekf_.x().segment<3>(3))) {
+    ekf_.mutableX() = x_prior;
+    ekf_.mutableP() = P_prior;
+    fs.update.applied = false;
+    fs.health |= kInvalidRotation;
+    return fs;
+  }
+  if (fs.health != kHealthy) return fs;
+  // 3. Centres into frame k, pose accumulation.
+  const Eigen::Matrix<double, 7, 1> mp = ekf_.x().head<7>();
+  std::vector<char> measured(model_.numPatches(), 0);
+  std::vector<Eigen::Vector2d> measured_centre(model_.numPatches());
+  for (size_t b = 0; b < used.size(); ++b) {
+    const bool gated = b < fs.update.gated_mask.size() && fs.update.gated_mask[b];
+    if (gated) continue;
+    const int k = obs[used[b]].id;
+    measured[k] = 1;
+    measured_centre[k] = obs[used[b]].z.head<2>();
+  }
+  std::vector<Eigen::Vector2d> centres(model_.numPatches());
+  for (int k = 0; k < model_.numPatches(); ++k) {
+    Vector6d zp;
+    const MeasureStatus st =
+        PatchModel::measure(opt_.measurement, mp, ekf_.x().segment<3>(PatchModel::structureIndex(k)), model_.centre(k),
+                            &zp, nullptr);
+    if (!opt_.filtered_centres && measured[k]) centres[k] = measured_centre[k];
+    else if (st == MeasureStatus::Ok) centres[k] = zp.head<2>();
+    else if (measured[k]) centres[k] = measured_centre[k];
+    else centres[k] = model_.centre(k);
+  }
+  const double beta = mp[6];
+  const Eigen::Matrix3d Rk = incrementalRotation(mp.segment<3>(3));
+  const Eigen::Vector3d t(mp[0], mp[1], mp[2] / beta);
+  const Eigen::Vector3d tbar = t + (Eigen::Matrix3d::Identity() - Rk) * Eigen::Vector3d(0, 0, 1.0 / beta);
+  // 4. Structure into frame k (Murray-Shapiro + gauge).
+  Eigen::VectorXd xn;
+  Eigen::MatrixXd F;
+  fs.transition = model_.transition(ekf_.x(), gauge_, gauge_value_, &xn, &F, &fs.lambda);
+  if (fs.transition != MeasureStatus::Ok || !xn.allFinite() || !F.allFinite()) {
+    if (fs.transition == MeasureStatus::Ok) fs.transition = MeasureStatus::NonFinite;
+    fs.health |= kNonFiniteState;
+    return fs;
+  }
+  ekf_.mutableX() = xn;
+  ekf_.predict(F, Eigen::MatrixXd::Zero(n, n));
+  for (int k = 0; k < model_.numPatches(); ++k) model_.setCentre(k, centres[k]);
+  T_ = Rk * T_ + scale_ * tbar;
+  R_ = Rk * R_;
+  scale_ *= fs.lambda;
+  fs.health |= ekf_.health();
+  return fs;
+}
+
+void PatchFilter::linearize(const Eigen::VectorXd& x, const std::vector<AffineObservation>& obs, MeasurementBatch* batch,
+                            std::vector<int>* used, PatchFrameStats* fs) const {
+  const int n = static_cast<int>(x.size());
+  const Eigen::Matrix<double, 7, 1> m = x.head<7>();
+  used->clear();
+  std::vector<Vector6d> residuals;
+  std::vector<PatchJacobian<6>> jacobians;
+  for (size_t i = 0; i < obs.size(); ++i) {
+    const AffineObservation& o = obs[i];
+    if (o.id < 0 || o.id >= model_.numPatches()) {
+      ++fs->invalid;
+      if (fs->first_problem == MeasureStatus::Ok) fs->first_problem = MeasureStatus::UnknownFeature;
+      continue;
+    }
+    Vector6d zp;
+    PatchJacobian<6> J;
+    const MeasureStatus st = PatchModel::measure(opt_.measurement, m, x.segment<3>(PatchModel::structureIndex(o.id)),
+                                                 model_.centre(o.id), &zp, &J);
+    if (st != MeasureStatus::Ok || !o.z.allFinite()) {
+      ++fs->invalid;
+      if (fs->first_problem == MeasureStatus::Ok)
+        fs->first_problem = st != MeasureStatus::Ok ? st : MeasureStatus::NonFinite;
+      continue;
+    }
+    used->push_back(static_cast<int>(i));
+    residuals.push_back(o.z - zp);
+    jacobians.push_back(J);
+  }
+  batch->resize(static_cast<int>(used->size()), n, PatchModel::kMeasDim);
+  // Annealing: the first anneal_frames frames inflate R, linearly back to 1 (see the options).
+  double inflate = 1.0;
+  if (opt_.anneal_frames > 0 && steps_ < opt_.anneal_frames)
+    inflate = 1.0 + (opt_.anneal_factor - 1.0) * (1.0 - static_cast<double>(steps_) / opt_.anneal_frames);
+  const Vector6d sd = opt_.measurement_sd * std::sqrt(inflate);
+  for (size_t b = 0; b < used->size(); ++b) {
+    const int k = obs[(*used)[b]].id, r0 = 6 * static_cast<int>(b);
+    batch->residual.segment<6>(r0) = residuals[b];
+    batch->H.block(r0, 0, 6, 7) = jacobians[b].leftCols<7>();
+    batch->H.block(r0, PatchModel::structureIndex(k), 6, 3) = jacobians[b].rightCols<3>();
+    batch->R.block<6, 6>(r0, 0) = sd.array().square().matrix().asDiagonal();
+  }
+}
+
+void PatchFilter::iterate(int iterations, const std::vector<AffineObservation>& obs, const std::vector<int>& used,
+                          const Eigen::VectorXd& x_prior, const Eigen::MatrixXd& P_prior, PatchFrameStats* fs) {
+  // Iterated EKF with backtracking: Gauss-Newton on the MAP cost
+  //   J(x) = sum_b r_b(x)^T R_b^-1 r_b(x) + (x - x^-)^T P^-^-1 (x - x^-)
+  // over the blocks accepted by the first update. Each Gauss-Newton point is the update of the
+  // prior linearized at the current iterate x_i (residual z - h(x_i) - H_i (x^- - x_i)); the step
+  // towards it is halved (up to 4 times) until J decreases, else the iterate stays. The covariance
+  // is the one of the last linearization.
+  std::vector<char> accepted(obs.size(), 0);
+  for (size_t b = 0; b < used.size(); ++b)
+    if (b >= fs->update.gated_mask.size() || !fs->update.gated_mask[b]) accepted[used[b]] = 1;
+  const std::vector<int> f = ekf_.freeIndices();
+  Eigen::MatrixXd Pf = P_prior(f, f);
+  Pf.diagonal().array() += 1e-12 * std::max(1e-300, Pf.diagonal().maxCoeff());
+  const Eigen::LDLT<Eigen::MatrixXd> prior(Pf);
+  const Eigen::Array<double, 6, 1> w = opt_.measurement_sd.array().square().inverse();
+  auto cost = [&](const Eigen::VectorXd& x, double* out) {
+    if (!x.allFinite() || !incrementalRotationValid(x.segment<3>(3))) return false;
+    double c = 0.0;
+    for (size_t i = 0; i < obs.size(); ++i) {
+      if (!accepted[i]) continue;
+      Vector6d zp;
+      if (PatchModel::measure(opt_.measurement, x.head<7>(), x.segment<3>(PatchModel::structureIndex(obs[i].id)),
+                              model_.centre(obs[i].id), &zp, nullptr) != MeasureStatus::Ok)
+        return false;
+      c += ((obs[i].z - zp).array().square() * w).sum();
+    }
+    const Eigen::VectorXd dx = (x - x_prior)(f);
+    c += dx.dot(prior.solve(dx));
+    *out = c;
+    return std::isfinite(c);
+  };
+  Eigen::VectorXd x_lin = x_prior;
+  double c_lin = 0.0;
+  if (!cost(x_lin, &c_lin)) return;
+  Eigen::VectorXd x_gn = ekf_.x();
+  Eigen::MatrixXd P_gn = ekf_.P();
+  for (int it = 0; it < iterations; ++it) {
+    const Eigen::VectorXd d = x_gn - x_lin;
+    bool ok = false;
+    double alpha = 1.0, c_acc = 0.0;
+    Eigen::VectorXd x_acc;
+    for (int ls = 0; ls < 5 && !ok; ++ls, alpha *= 0.5) {
+      const Eigen::VectorXd xt = x_lin + alpha * d;
+      double c = 0.0;
+      if (cost(xt, &c) && c < c_lin) ok = true, x_acc = xt, c_acc = c;
+    }
+    fs->iterations = it + 1;
+    ekf_.mutableP() = P_gn;
+    if (!ok) {
+      ekf_.mutableX() = x_lin;
+      return;
+    }
+    ekf_.mutableX() = x_acc;
+    const double step = (x_acc - x_lin).cwiseAbs().maxCoeff();
+    x_lin = x_acc;
+    c_lin = c_acc;
+    if (!(step > opt_.iteration_tol) || it + 1 >= iterations) return;
+    MeasurementBatch relin;
+    std::vector<int> used_i;
+    PatchFrameStats tmp;
+    linearize(x_lin, obs, &relin, &used_i, &tmp);
+    if (used_i != used) return;
+    relin.residual += relin.H * (x_lin - x_prior);
+    for (size_t b = 0; b < used.size(); ++b)
+      if (!accepted[used[b]]) relin.R.block<6, 6>(6 * b, 0) *= 1e12;  // keep the first update's gate decisions
+    ekf_.mutableX() = x_prior;
+    ekf_.mutableP() = P_prior;
+    UpdateOptions uo = opt_.update;
+    uo.gate_probability = 0.0;
+    const UpdateStats st = ekf_.update(relin, uo);
+    if (!st.applied) {
+      ekf_.mutableX() = x_lin;
+      ekf_.mutableP() = P_gn;
+      return;
+    }
+    x_gn = ekf_.x();
+    P_gn = ekf_.P();
+  }
+}
+
+int PatchFilter::addPatch(const Eigen::Vector2d& centre, const Eigen::Vector3d& s0, const Eigen::Matrix3d& P0) {
+  ekf_.augment(s0, P0, Eigen::MatrixXd::Zero(3, ekf_.size()));
+  return model_.addPatch(centre);
+}
+
+bool PatchFilter::removePatch(int slot) {
+  if (model_.numPatches() <= 1 || slot < 0 || slot >= model_.numPatches()) return false;
+  if (slot == gauge_) {
+    // New gauge: the best-determined p4 among the others.
+    int best = -1;
+    for (int k = 0; k < model_.numPatches(); ++k) {
+      if (k == slot) continue;
+      const double v = ekf_.P()(PatchModel::p4Index(k), PatchModel::p4Index(k));
+      if (best < 0 || v < ekf_.P()(PatchModel::p4Index(best), PatchModel::p4Index(best))) best = k;
+    }
+    const int ib = PatchModel::p4Index(best);
+    Eigen::VectorXd y;
+    Eigen::MatrixXd G;
+    if (!(PatchModel::regauge(ekf_.x(), best, ekf_.x()[ib], &y, &G) > 0.0)) return false;
+    ekf_.setFixed(PatchModel::p4Index(gauge_), false);
+    Eigen::MatrixXd P = G * ekf_.P() * G.transpose();
+    ekf_.mutableP() = 0.5 * (P + P.transpose());
+    ekf_.mutableX() = y;
+    ekf_.setFixed(ib, true);
+    gauge_ = best;
+    gauge_value_ = y[ib];
+  }
+  const int i = PatchModel::structureIndex(slot);
+  ekf_.remove({i, i + 1, i + 2});
+  model_.removePatch(slot);
+  if (gauge_ > slot) --gauge_;
+  return true;
+}
+
+}  // namespace rsfm
