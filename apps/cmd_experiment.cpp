@@ -160,6 +160,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   struct PatchesCli {
     rsfm::PatchesOptions o;
     std::string out = "out";
+    std::string centres = "fused";
     bool quiet = false;
   };
   auto pas = std::make_shared<PatchesCli>();
@@ -188,8 +189,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
       ->capture_default_str();
   pat->add_option("--anneal-factor", pa.anneal_factor, "patch filter: R inflation at the first frame")
       ->capture_default_str();
-  pat->add_option("--filtered-centres", pa.filtered_centres,
-                  "patch filter: carry the posterior's predicted centres (true) or the measured ones (false)")
+  pat->add_option("--centres", pas->centres, "patch filter: centres measured | predicted | fused (docs/patches.md)")
       ->capture_default_str();
   pat->add_option("--iterations", pa.iterations, "patch filter: measurement-update iterations (1 = EKF)")
       ->capture_default_str();
@@ -257,6 +257,8 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     }});
   commands.push_back({pat, [pas]() -> int {
     auto& o = pas->o;
+    if (!rsfm::parsePatchCentres(pas->centres, &o.centres))
+      return fail(kBadInput, "--centres must be 'measured', 'predicted' or 'fused', got '" + pas->centres + "'");
     if (auto msg = rsfm::validatePatchesOptions(o); !msg.empty()) return fail(kBadInput, msg);
     if (auto msg = rsfm::io::ensureWritableDirectory(pas->out); !msg.empty()) return fail(kBadInput, msg);
     if (!pas->quiet) o.progress = progressReporter("patches");

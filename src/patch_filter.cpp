@@ -10,6 +10,18 @@
 
 namespace rsfm {
 
+std::string_view toString(PatchCentres c) {
+  return c == PatchCentres::Measured ? "measured" : c == PatchCentres::Predicted ? "predicted" : "fused";
+}
+
+bool parsePatchCentres(std::string_view s, PatchCentres* out) {
+  if (s == "measured") *out = PatchCentres::Measured;
+  else if (s == "predicted") *out = PatchCentres::Predicted;
+  else if (s == "fused") *out = PatchCentres::Fused;
+  else return false;
+  return true;
+}
+
 PatchFilter::PatchFilter(PatchModel model, Ekf ekf, int gauge, PatchFilterOptions options)
     : model_(std::move(model)), ekf_(std::move(ekf)), gauge_(gauge), opt_(options) {
   if (ekf_.size() != model_.stateDim()) throw std::invalid_argument("patch filter: state size does not match the patches");
@@ -17,6 +29,7 @@ PatchFilter::PatchFilter(PatchModel model, Ekf ekf, int gauge, PatchFilterOption
   opt_.update.min_blocks = std::max(opt_.update.min_blocks, PatchModel::kMinPatches);
   ekf_.setFixed(PatchModel::p4Index(gauge_), true);
   gauge_value_ = ekf_.x()[PatchModel::p4Index(gauge_)];
+  centre_cov_.assign(model_.numPatches(), Eigen::Matrix2d::Identity() * opt_.centre_sd * opt_.centre_sd);
 }
 
 PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
@@ -62,15 +75,42 @@ PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
     measured_centre[k] = obs[used[b]].z.head<2>();
   }
   std::vector<Eigen::Vector2d> centres(model_.numPatches());
+  std::vector<Eigen::Matrix2d> covs = centre_cov_;
+  const double s2 = opt_.centre_sd * opt_.centre_sd;
   for (int k = 0; k < model_.numPatches(); ++k) {
     Vector6d zp;
+    PatchJacobian<6> J;
+    const int is = PatchModel::structureIndex(k);
     const MeasureStatus st =
-        PatchModel::measure(opt_.measurement, mp, ekf_.x().segment<3>(PatchModel::structureIndex(k)), model_.centre(k),
-                            &zp, nullptr);
-    if (!opt_.filtered_centres && measured[k]) centres[k] = measured_centre[k];
-    else if (st == MeasureStatus::Ok) centres[k] = zp.head<2>();
-    else if (measured[k]) centres[k] = measured_centre[k];
-    else centres[k] = model_.centre(k);
+        PatchModel::measure(opt_.measurement, mp, ekf_.x().segment<3>(is), model_.centre(k), &zp, &J);
+    const bool predicted = st == MeasureStatus::Ok;
+    if (opt_.centres == PatchCentres::Measured || !predicted) {
+      centres[k] = measured[k] ? measured_centre[k] : predicted ? Eigen::Vector2d(zp.head<2>()) : model_.centre(k);
+      covs[k] = Eigen::Matrix2d::Identity() * s2;
+      continue;
+    }
+    if (opt_.centres == PatchCentres::Predicted) {
+      centres[k] = zp.head<2>();
+      continue;
+    }
+    // Fused: prediction with its covariance, then the measured centre.
+    Eigen::Matrix2d A;
+    A << zp[2], zp[3], zp[4], zp[5];
+    std::vector<int> cols{0, 1, 2, 3, 4, 5, 6, is, is + 1, is + 2};
+    const Eigen::Matrix<double, 2, 10> Jh = J.topRows<2>();
+    const Eigen::Matrix2d Cp = A * centre_cov_[k] * A.transpose() + Jh * ekf_.P()(cols, cols) * Jh.transpose();
+    if (!measured[k]) {  // gated or not observed: restart from the measurement if there is one
+      bool seen = false;
+      for (size_t b = 0; b < used.size(); ++b)
+        if (obs[used[b]].id == k) seen = true, centres[k] = obs[used[b]].z.head<2>();
+      if (seen) covs[k] = Eigen::Matrix2d::Identity() * s2;
+      else centres[k] = zp.head<2>(), covs[k] = Cp;
+      continue;
+    }
+    const Eigen::Matrix2d G = Cp * (Cp + Eigen::Matrix2d::Identity() * s2).inverse();
+    centres[k] = zp.head<2>() + G * (measured_centre[k] - zp.head<2>());
+    const Eigen::Matrix2d C = (Eigen::Matrix2d::Identity() - G) * Cp;
+    covs[k] = 0.5 * (C + C.transpose());
   }
   const double beta = mp[6];
   const Eigen::Matrix3d Rk = incrementalRotation(mp.segment<3>(3));
@@ -88,6 +128,7 @@ PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
   ekf_.mutableX() = xn;
   ekf_.predict(F, Eigen::MatrixXd::Zero(n, n));
   for (int k = 0; k < model_.numPatches(); ++k) model_.setCentre(k, centres[k]);
+  centre_cov_ = covs;
   T_ = Rk * T_ + scale_ * tbar;
   R_ = Rk * R_;
   scale_ *= fs.lambda;
@@ -100,7 +141,7 @@ void PatchFilter::linearize(const Eigen::VectorXd& x, const std::vector<AffineOb
   const int n = static_cast<int>(x.size());
   const Eigen::Matrix<double, 7, 1> m = x.head<7>();
   used->clear();
-  std::vector<Vector6d> residuals;
+  std::vector<Vector6d> residuals, predicted;
   std::vector<PatchJacobian<6>> jacobians;
   for (size_t i = 0; i < obs.size(); ++i) {
     const AffineObservation& o = obs[i];
@@ -121,6 +162,7 @@ void PatchFilter::linearize(const Eigen::VectorXd& x, const std::vector<AffineOb
     }
     used->push_back(static_cast<int>(i));
     residuals.push_back(o.z - zp);
+    predicted.push_back(zp);
     jacobians.push_back(J);
   }
   batch->resize(static_cast<int>(used->size()), n, PatchModel::kMeasDim);
@@ -135,6 +177,14 @@ void PatchFilter::linearize(const Eigen::VectorXd& x, const std::vector<AffineOb
     batch->H.block(r0, 0, 6, 7) = jacobians[b].leftCols<7>();
     batch->H.block(r0, PatchModel::structureIndex(k), 6, 3) = jacobians[b].rightCols<3>();
     batch->R.block<6, 6>(r0, 0) = sd.array().square().matrix().asDiagonal();
+    // The previous centre is uncertain (covariance C): its error moves the predicted centre by
+    // A (c - c_true), A = dh/dc; dA/dc is second order and left out.
+    if (opt_.centres != PatchCentres::Predicted) {
+      const Vector6d& zp = predicted[b];
+      Eigen::Matrix2d A;
+      A << zp[2], zp[3], zp[4], zp[5];
+      batch->R.block<2, 2>(r0, 0) += inflate * A * centre_cov_[k] * A.transpose();
+    }
   }
 }
 
@@ -221,6 +271,7 @@ void PatchFilter::iterate(int iterations, const std::vector<AffineObservation>& 
 
 int PatchFilter::addPatch(const Eigen::Vector2d& centre, const Eigen::Vector3d& s0, const Eigen::Matrix3d& P0) {
   ekf_.augment(s0, P0, Eigen::MatrixXd::Zero(3, ekf_.size()));
+  centre_cov_.push_back(Eigen::Matrix2d::Identity() * opt_.centre_sd * opt_.centre_sd);
   return model_.addPatch(centre);
 }
 
@@ -249,6 +300,7 @@ bool PatchFilter::removePatch(int slot) {
   const int i = PatchModel::structureIndex(slot);
   ekf_.remove({i, i + 1, i + 2});
   model_.removePatch(slot);
+  centre_cov_.erase(centre_cov_.begin() + slot);
   if (gauge_ > slot) --gauge_;
   return true;
 }

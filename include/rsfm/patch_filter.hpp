@@ -5,8 +5,7 @@
 //      structure gets q_structure);
 //   2. update with each patch's 6 affine parameters (about its centre in frame k-1), chi-square
 //      gated per patch (6 dof);
-//   3. carry every patch's centre into frame k (the posterior's predicted centre, or the measured
-//      one: PatchFilterOptions::filtered_centres) and accumulate the camera pose;
+//   3. carry every patch's centre into frame k (PatchCentres) and accumulate the camera pose;
 //   4. carry the structure into frame k by the Murray-Shapiro transition followed by the scale
 //      gauge (PatchModel::transition): x <- f(x), P <- F P F^T.
 // Scale gauge: one patch's p4 is held fixed (zero variance). In every frame the scene is rescaled
@@ -16,12 +15,35 @@
 // rescaling with lambda = 1 (values unchanged, covariance transformed by its Jacobian).
 #include <Eigen/Core>
 #include <cstdint>
+#include <string_view>
 #include <vector>
 
 #include "rsfm/ekf.hpp"
 #include "rsfm/models/patch_model.hpp"
 
 namespace rsfm {
+
+/// Treatment of the patch centres, which are outside the state (7 + 3K) but are the points about
+/// which each next measurement is taken (DESIGN.md §5 leaves this open).
+enum class PatchCentres {
+  /// The tracker's measured centre. The previous centre is then a noisy measurement of the same
+  /// point: centre_sd^2 A A^T is added to R of the centre coordinates. Each displacement is used as
+  /// if independent, so the long-baseline information of the positions is lost (a k-frame
+  /// displacement looks k times noisier than it is).
+  Measured,
+  /// The posterior's predicted centre, h(x+, c_prev). Drifts off the tracked point wherever the
+  /// state is wrong: a patch whose structure is off is gated and never re-synchronized (20 px in
+  /// 60 frames in the plane scene; docs/patches.md).
+  Predicted,
+  /// A 2-D Kalman filter per centre, beside the EKF: the predicted centre h(x+, c_prev) with
+  /// covariance A C_prev A^T + J P+ J^T (J = dh/dx of the patch) is fused with the measured centre
+  /// (centre_sd^2 I); R of the next centre measurement gets A C A^T. A gated patch restarts from its
+  /// measured centre. Approximate: the measured centre informs both the state and the centre, and
+  /// their cross-covariance is not kept (as ReferenceModel::Refine for points).
+  Fused,
+};
+std::string_view toString(PatchCentres c);
+bool parsePatchCentres(std::string_view s, PatchCentres* out);
 
 /// Tuning of the patch filter. Units: normalized image units (DESIGN §1), the gauge's scene units.
 struct PatchFilterOptions {
@@ -37,9 +59,11 @@ struct PatchFilterOptions {
   /// Per-frame process variance of each free structure component (p1, p2, p4).
   double q_structure = 0.0;
   UpdateOptions update;  ///< gating (per patch, 6 dof), form, minimum patches (>= kMinPatches)
-  /// True: after each update a patch's centre becomes the posterior's predicted centre (the
-  /// tracker's measurement blended with the prediction); false: the measured centre.
-  bool filtered_centres = true;
+  /// Where each patch's centre in the new frame (the linearization point of the next
+  /// measurement) comes from; see PatchCentres.
+  PatchCentres centres = PatchCentres::Fused;
+  /// Standard deviation of a measured centre (normalized units): the tracker's position noise.
+  double centre_sd = 0.5 / 256.0;
   double beta_min = 0.0;  ///< lower bound on beta, as FilterOptions::beta_min (0: none)
   /// Iterated EKF: Gauss-Newton relinearizations of the measurement per frame (1 = plain EKF);
   /// stops when the step (infinity norm) falls below iteration_tol.
@@ -82,6 +106,8 @@ class PatchFilter {
   /// Adds a patch centred at `centre` (current frame) with prior structure s0 and covariance P0
   /// (no cross-covariance with the state). Returns its slot.
   int addPatch(const Eigen::Vector2d& centre, const Eigen::Vector3d& s0, const Eigen::Matrix3d& P0);
+  /// Covariance of patch k's centre (normalized units^2; PatchCentres::Fused, else centre_sd^2 I).
+  const Eigen::Matrix2d& centreCovariance(int k) const { return centre_cov_[k]; }
   /// Removes a patch (slots above it shift down by one). Moves the gauge first if it is the gauge
   /// patch. Returns false when it is the last patch.
   bool removePatch(int slot);
@@ -110,6 +136,7 @@ class PatchFilter {
                const Eigen::VectorXd& x_prior, const Eigen::MatrixXd& P_prior, PatchFrameStats* fs);
 
   PatchModel model_;
+  std::vector<Eigen::Matrix2d> centre_cov_;
   int steps_ = 0;
   Ekf ekf_;
   int gauge_ = 0;

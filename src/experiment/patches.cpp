@@ -73,7 +73,8 @@ Run runPatchFilter(const PatchesOptions& o, const TrialData& td, AffineMeasureme
   fo.update.gate_probability = o.gate_probability;
   fo.anneal_frames = o.anneal_frames;
   fo.anneal_factor = o.anneal_factor;
-  fo.filtered_centres = o.filtered_centres;
+  fo.centres = o.centres;
+  fo.centre_sd = 0.5 * (td.sd[0] + td.sd[1]);
   fo.iterations = o.iterations;
   fo.q_structure = o.q_structure;
   PatchFilter f(PatchModel(td.centre[0]), Ekf(x0, P0, std::vector<bool>(n, false)), td.gauge, fo);
@@ -258,7 +259,7 @@ PatchesResult runPatches(const PatchesOptions& o) {
       const int F = levels[l].plane ? o.plane.table1.frames : o.sphere.frames;
       row.normal_by_frame.assign(F + 1, 0.0);
       row.beta_by_frame.assign(F + 1, 0.0);
-      std::vector<double> fit_by_frame(F + 1, 0.0);
+      std::vector<double> patch_by_frame(F + 1, 0.0);
       double st = 0, sq = 0;
       int nt = 0, nq = 0, ok = 0;
       for (int t = 0; t < o.trials; ++t) {
@@ -269,16 +270,17 @@ PatchesResult runPatches(const PatchesOptions& o) {
         }
         ++ok;
         for (int k = 0; k <= F; ++k) {
-          row.normal_by_frame[k] += r.normal[k];
+          row.normal_by_frame[k] += levels[l].plane ? r.plane_fit[k] : r.normal[k];
           row.beta_by_frame[k] += r.beta_pct[k];
-          fit_by_frame[k] += r.plane_fit[k];
+          patch_by_frame[k] += r.normal[k];
         }
         row.max_normal_err_deg += r.max_normal_last;
+        row.worst_normal_err_deg = std::max(row.worst_normal_err_deg, r.max_normal_last);
         st += r.sq_t, sq += r.sq_q, nt += r.n_t, nq += r.n_q;
       }
       if (ok == 0) {
         for (int k = 0; k <= F; ++k) row.normal_by_frame[k] = row.beta_by_frame[k] = NAN;
-        row.rms_t = row.rms_q = row.normal_err_deg = row.plane_fit_err_deg = row.max_normal_err_deg =
+        row.rms_t = row.rms_q = row.normal_err_deg = row.patch_normal_err_deg = row.max_normal_err_deg = row.worst_normal_err_deg =
             row.normal_err_frame100 = row.beta_err_pct = NAN;
         res.rows.push_back(row);
         continue;
@@ -286,13 +288,14 @@ PatchesResult runPatches(const PatchesOptions& o) {
       for (int k = 0; k <= F; ++k) {
         row.normal_by_frame[k] /= ok;
         row.beta_by_frame[k] /= ok;
-        fit_by_frame[k] /= ok;
+        patch_by_frame[k] /= ok;
       }
       row.max_normal_err_deg = m == 2 ? NAN : row.max_normal_err_deg / ok;
+      if (m == 2) row.worst_normal_err_deg = NAN;
       row.rms_t = std::sqrt(st / nt);
       row.rms_q = std::sqrt(sq / nq);
       row.normal_err_deg = row.normal_by_frame[F];
-      row.plane_fit_err_deg = fit_by_frame[F];
+      row.patch_normal_err_deg = m == 2 ? NAN : patch_by_frame[F];
       row.normal_err_frame100 = row.normal_by_frame[std::min(F, 100)];
       row.beta_err_pct = row.beta_by_frame[F];
       row.frames_to_converge =

@@ -31,20 +31,22 @@ std::string patchesMarkdown(const PatchesResult& r, const std::string& command_l
        "each of the six flow parameters (h - c, A - I) gets Gaussian noise of standard deviation rho times its "
        "largest magnitude over the scene; the centres carry the same noise as h.\n\n";
   s += "Columns: rms_t / rms_q = RMS error of the camera position (first-frame units) / of the quaternion's "
-       "components over frames 1..F and trials; normal error at the last frame, mean over trials: patch filter = "
-       "mean over patches of each patch normal's angle error (the largest patch's error in its own column); point "
-       "filter = the plane fitted to its 3-D points (plane scene only; a point has no normal on the sphere); "
-       "plane-fit = the plane fitted to the 3-D patch centres (plane scene); frames to converge = first frame from "
-       "which the trial-mean normal error stays within " +
+       "components over frames 1..F and trials. Normal error at the last frame, mean over trials: on the sphere the "
+       "patch filter's mean over patches of each patch normal's angle error (a point has no normal: NA for the point "
+       "filter); on the plane the plane fitted to each filter's 3-D patch centres (Table 1's protocol, the same for "
+       "every method). Patch normals: the patch filter's own per-patch normal errors, mean over patches / largest "
+       "patch (mean over trials) / largest patch in any trial. Frames to converge = first frame from which the "
+       "trial-mean normal error stays within " +
        num(o.converge_normal_deg, 1) + " deg and beta within " + num(o.converge_beta_pct, 1) +
        " % (the point filter on the sphere: beta only; -1 = never).\n\n";
-  s += "| scene | measurement | noise | rms_t | rms_q | normal err (deg) | worst patch (deg) | plane-fit (deg) | normal err frame 100 | beta err (%) | frames to converge | failed |\n";
-  s += "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  s += "| scene | measurement | noise | rms_t | rms_q | normal err (deg) | patch normals: mean / worst / worst in any trial (deg) | normal err frame 100 | beta err (%) | frames to converge | failed |\n";
+  s += "|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const auto& row : r.rows)
-    s += fmt::format("| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {}/{} |\n", row.scene, row.measurement,
-                     num(row.noise, 3), num(row.rms_t, 4), num(row.rms_q, 4), num(row.normal_err_deg, 2),
-                     num(row.max_normal_err_deg, 2), num(row.plane_fit_err_deg, 2), num(row.normal_err_frame100, 2),
-                     num(row.beta_err_pct, 2), row.frames_to_converge, row.failed, row.trials);
+    s += fmt::format("| {} | {} | {} | {} | {} | {} | {} / {} / {} | {} | {} | {} | {}/{} |\n", row.scene,
+                     row.measurement, num(row.noise, 3), num(row.rms_t, 4), num(row.rms_q, 4),
+                     num(row.normal_err_deg, 2), num(row.patch_normal_err_deg, 2), num(row.max_normal_err_deg, 2),
+                     num(row.worst_normal_err_deg, 2), num(row.normal_err_frame100, 2), num(row.beta_err_pct, 2),
+                     row.frames_to_converge, row.failed, row.trials);
   s += "\n## Failures\n\n";
   bool any = false;
   for (const auto& row : r.rows)
@@ -58,11 +60,12 @@ std::string patchesMarkdown(const PatchesResult& r, const std::string& command_l
   const auto& pl = o.plane;
   s += "\n## Options\n\n| option | value |\n|---|---|\n";
   s += fmt::format("| sphere | {} frames, {} clusters of {} points ({} deg across) within {} deg of the point facing the "
-                   "camera; radius {}, centre ({}, {}, {}), velocity ({}, {}, {}) per frame, rotation {} / {} deg per "
-                   "frame about x / y; beta {} (f = 1, half-width 0.5) |\n",
-                   sp.frames, sp.patches, sp.cluster_points + 1, sp.cluster_deg, sp.max_off_axis_deg, sp.radius,
-                   sp.centre.x(), sp.centre.y(), sp.centre.z(), sp.velocity.x(), sp.velocity.y(), sp.velocity.z(),
-                   sp.deg_x, sp.deg_y, sp.beta);
+                   "camera, at least {} deg apart; radius {}, centre ({}, {}, {}); over one period of the sequence the "
+                   "centre moves by ({} sin, {} sin(+1), {} (1 - cos)) and the sphere turns {} sin deg about x and {} "
+                   "sin(+1) deg about y; beta {} (f = 1, half-width 0.5) |\n",
+                   sp.frames, sp.patches, sp.cluster_points + 1, sp.cluster_deg, sp.max_off_axis_deg,
+                   sp.min_separation_deg, sp.radius, sp.centre.x(), sp.centre.y(), sp.centre.z(), sp.amplitude.x(),
+                   sp.amplitude.y(), sp.amplitude.z(), sp.angle_x_deg, sp.angle_y_deg, sp.beta);
   s += fmt::format("| plane | Table 1 scene: {} frames, {} deg per frame about y through (0, 0, 2), N = 2(1/sqrt3, 0, "
                    "1); {} clusters of {} points ({} deg across) centred on Table 1 points; s = {} px |\n",
                    pl.table1.frames, pl.table1.deg_per_frame, pl.patches, pl.cluster_points + 1, pl.cluster_deg,
@@ -73,8 +76,9 @@ std::string patchesMarkdown(const PatchesResult& r, const std::string& command_l
                    o.beta0, o.beta_var0, o.normal_var0, o.depth_rel_sd0);
   s += fmt::format("| patch filter | inter-frame motion prior var {:g}; q_trans {:g}, q_omega {:g} per frame "
                    "(constant velocity); R = the true noise variances, annealed over the first {} frames from {:g} times; "
-                   "filtered centres; gate {:g} |\n",
-                   o.motion_var0, o.q_translation, o.q_omega, o.anneal_frames, o.anneal_factor, o.gate_probability);
+                   "{} centres; {} update iteration(s); q_structure {:g}; gate {:g} |\n",
+                   o.motion_var0, o.q_translation, o.q_omega, o.anneal_frames, o.anneal_factor,
+                   toString(o.centres), o.iterations, o.q_structure, o.gate_probability);
   s += fmt::format("| point filter | reset reading, q_trans {:g}, q_omega {:g}, refined references, sigma = the "
                    "centre noise |\n",
                    o.point_q_translation, o.point_q_omega);

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "rsfm/patch_filter.hpp"
 #include "rsfm/sim/patch_scene.hpp"
 
 namespace rsfm {
@@ -32,11 +33,11 @@ struct PatchesOptions {
   /// Patch filter: initial variance of each inter-frame motion component, and its per-frame
   /// process variances (translation components, rotation components).
   double motion_var0 = 1e-4;
-  double q_translation = 1e-8, q_omega = 1e-8;
+  double q_translation = 3e-7, q_omega = 3e-7;
   /// Patch filter: R annealing over the first frames (PatchFilterOptions::anneal_frames/_factor).
   int anneal_frames = 50;
-  double anneal_factor = 100.0;
-  bool filtered_centres = true;  ///< PatchFilterOptions::filtered_centres
+  double anneal_factor = 300.0;
+  PatchCentres centres = PatchCentres::Fused;  ///< PatchFilterOptions::centres (centre_sd = the centres' noise)
   int iterations = 1;            ///< patch filter update iterations (1 = EKF)
   double q_structure = 0.0;      ///< patch filter: per-frame variance of each structure parameter
   /// Point filter (reset reading, refined references as in Table 1): per-frame process variances.
@@ -54,12 +55,14 @@ struct PatchesRow {
   std::string measurement;  ///< "exact", "instantaneous" (patch filter) or "point-centres"
   double noise = 0;         ///< rho
   double rms_t = 0, rms_q = 0;  ///< RMS error of camera position (first-frame units) / quaternion components, frames 1..F
-  /// Last frame, mean over trials: patch filter = mean over patches of each patch normal's
-  /// angle error; point filter = the plane fitted to its 3-D points (plane scene; NA on the sphere).
+  /// Normal error at the last frame, mean over trials. Sphere: the patch filter's mean over
+  /// patches of each patch normal's angle error (NA for the point filter: a point has no normal).
+  /// Plane: the plane fitted to the filter's 3-D patch centres (the Table 1 protocol) for every method.
   double normal_err_deg = 0;
-  double plane_fit_err_deg = 0;  ///< last frame: plane fitted to the 3-D patch centres (plane scene)
-  double max_normal_err_deg = 0; ///< patch filter: largest patch normal error at the last frame (mean over trials)
-  double normal_err_frame100 = 0;  ///< the normal error at frame 100 (plane scene: the last frame)
+  double patch_normal_err_deg = 0;  ///< patch filter: mean over patches of each patch normal's error
+  double max_normal_err_deg = 0;    ///< patch filter: largest patch normal error (mean over trials)
+  double worst_normal_err_deg = 0;  ///< patch filter: largest patch normal error over all trials
+  double normal_err_frame100 = 0;   ///< normal_err_deg's series at frame 100 (plane scene: the last frame)
   double beta_err_pct = 0;
   int frames_to_converge = -1;   ///< first frame from which both thresholds hold to the end (-1: never)
   int trials = 0, failed = 0;

@@ -5,7 +5,7 @@
 // image in frame k-1 (so curvature of the surface within the cluster is in the data, as with
 // Calway's clusters of points). Coordinates: A&P (origin on the image plane, COP at (0, 0, -1/beta)).
 //   - Sphere scene: 8 clusters on a sphere that translates along all three axes and rotates about
-//     x and y; f = 1 (beta = 1) with a 53-degree field of view (image half-width 0.5).
+//     x and y (sinusoidally); f = 1 (beta = 1) with a 53-degree field of view (image half-width 0.5).
 //   - Plane scene: the Table 1 scene (seed 000 §4) with a cluster around each of its points.
 #include <Eigen/Core>
 #include <random>
@@ -21,11 +21,13 @@ struct SphereSceneOptions {
   int patches = 8;                  ///< clusters
   double beta = 1.0;                ///< f = 1
   double radius = 1.0;              ///< sphere radius (scene units)
-  Eigen::Vector3d centre{0.0, 0.0, 2.5};  ///< sphere centre in frame 0 (A&P; 3.5 from the COP)
-  /// Per-frame translation of the sphere centre (scene units) along x, y, z.
-  Eigen::Vector3d velocity{0.0015, -0.001, 0.002};
-  /// Per-frame rotation of the sphere about its centre, about the camera's x and y axes (deg).
-  double deg_x = 0.1, deg_y = -0.12;
+  Eigen::Vector3d centre{0.0, 0.0, 1.5};  ///< sphere centre in frame 0 (A&P; 2.5 from the COP)
+  /// Motion of the sphere, one period over the sequence (phase 2 pi k / frames): its centre moves
+  /// by (a_x sin, a_y sin(. + 1), a_z (1 - cos)) and it turns about its centre by angle_x sin about
+  /// the camera's x axis and angle_y sin(. + 1) about its y axis. A sinusoid keeps the clusters in
+  /// view while the views span +-angle; identity dynamics must follow the changing velocity.
+  Eigen::Vector3d amplitude{0.25, 0.15, 0.4};
+  double angle_x_deg = 15.0, angle_y_deg = 20.0;
   /// Clusters are centred within this angle (deg) of the sphere point facing the camera.
   double max_off_axis_deg = 35.0;
   /// Minimum angle between two cluster centres as seen from the sphere centre (deg).
