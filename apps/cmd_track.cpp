@@ -1,4 +1,5 @@
-// `rsfm track INPUT --out DIR`: KLT tracks of a video, image pattern or folder (docs/tracks.md).
+// `rsfm track INPUT --out DIR [--patches]`: KLT tracks or affine patches of a video, image pattern or
+// folder (docs/tracks.md).
 #include <fmt/format.h>
 
 #include <cmath>
@@ -7,6 +8,7 @@
 
 #include "cli_common.hpp"
 #include "rsfm/io/atomic_file.hpp"
+#include "rsfm/io/patches_io.hpp"
 #include "rsfm/io/tracks_io.hpp"
 #include "track_options.hpp"
 
@@ -26,6 +28,15 @@ void addTrackerOptions(CLI::App* app, TrackCli* t) {
   app->add_option("--fb-check", o.fb_check, "forward-backward check: 1 on, 0 off, -1 auto (off when anchored)")->capture_default_str();
   app->add_option("--anchor-every", o.anchor_every, "align each track to its first appearance every this many frames")->capture_default_str();
   app->add_flag("!--no-anchor", o.anchor, "frame-to-frame tracking only (no re-alignment to each track's first appearance)");
+}
+
+void addPatchTrackerOptions(CLI::App* app, TrackCli* t) {
+  auto& o = t->patches;
+  app->add_option("--patch-radius", o.affine.radius, "affine patches: template half-size (px)")->capture_default_str();
+  app->add_option("--max-patches", o.max_patches, "affine patches: patches kept alive at most")->capture_default_str();
+  app->add_option("--patch-quality", o.quality, "affine patches: Shi-Tomasi quality level")->capture_default_str();
+  app->add_option("--patch-max-rms", o.affine.max_rms, "affine patches: loss above this normalized residual")
+      ->capture_default_str();
 }
 
 std::string parsePolygon(const std::string& s, std::vector<cv::Point2f>* out) {
@@ -62,6 +73,13 @@ std::string finishTrackerOptions(TrackCli* t) {
   if (!t->roi.empty()) {
     if (auto m = parsePolygon(t->roi, &t->tracker.roi); !m.empty()) return "--roi: " + m;
   }
+  t->patches.roi = t->tracker.roi;
+  const auto& p = t->patches;
+  if (p.affine.radius < 3 || p.affine.radius > 60) return "--patch-radius must be in 3..60";
+  if (p.max_patches < 3) return "--max-patches must be at least 3";
+  if (!(p.quality > 0 && p.quality < 1)) return "--patch-quality must be in (0, 1)";
+  if (!(p.affine.max_rms > 0)) return "--patch-max-rms must be positive";
+  t->patches.affine.window_sigma = p.affine.radius;
   return "";
 }
 
@@ -71,16 +89,47 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
     std::string input;
     std::string out = "out";
     bool quiet = false;
+    bool patches = false;
   };
   auto c = std::make_shared<Cli>();
-  auto* tr = app.add_subcommand("track", "KLT feature tracks of a video, image pattern or folder -> DIR/tracks.csv");
+  auto* tr = app.add_subcommand(
+      "track", "KLT feature tracks (DIR/tracks.csv) or, with --patches, affine patches (DIR/patches.csv) of a video, "
+               "image pattern or folder");
   tr->add_option("input", c->input, "video file, image pattern (frames/img%04d.png) or folder of images")->required();
   tr->add_option("--out", c->out, "output directory")->capture_default_str();
   addTrackerOptions(tr, &c->t);
+  tr->add_flag("--patches", c->patches, "track affine patches (Calway's filter's input) -> DIR/patches.csv");
+  addPatchTrackerOptions(tr, &c->t);
   tr->add_flag("--quiet", c->quiet, "no progress on stderr");
   commands.push_back({tr, [c]() -> int {
     if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
     if (auto m = io::ensureWritableDirectory(c->out); !m.empty()) return fail(kBadInput, m);
+    if (c->patches) {
+      PatchTracks pt;
+      try {
+        pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range,
+                                       c->quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames"));
+      } catch (const io::InputError& e) {
+        return fail(kBadInput, e.what());
+      } catch (const std::exception& e) {
+        return fail(kRuntimeFailure, e.what());
+      }
+      try {
+        io::AtomicFileSet files;
+        files.write(std::filesystem::path(c->out) / "patches.csv", io::patchesToString(pt));
+        files.commit();
+      } catch (const std::exception& e) {
+        return fail(kRuntimeFailure, e.what());
+      }
+      if (!c->quiet) {
+        int ids = 0;
+        for (const auto& f : pt.frames)
+          for (const auto& p : f) ids = std::max(ids, p.id + 1);
+        fmt::print(stderr, "track: {} frames, {} patches (radius {} px); wrote {}/patches.csv\n", pt.numFrames(), ids,
+                   pt.radius, c->out);
+      }
+      return 0;
+    }
     Tracks tracks;
     try {
       tracks = vision::trackInput(c->input, c->t.tracker, c->t.range,

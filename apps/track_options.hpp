@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "rsfm/vision/klt_tracker.hpp"
+#include "rsfm/vision/patch_tracker.hpp"
 
 namespace rsfm::cli {
 
@@ -14,9 +15,12 @@ struct TrackCli {
   vision::TrackerOptions tracker;
   vision::FrameRange range;
   std::string roi;  ///< "x,y,x,y,..." (first-frame pixels)
+  vision::PatchTrackerOptions patches;  ///< --patches (shares range and roi)
 };
 
 void addTrackerOptions(CLI::App* app, TrackCli* t);
+/// The affine-patch tracker's options (--patch-radius, --max-patches, ...).
+void addPatchTrackerOptions(CLI::App* app, TrackCli* t);
 /// Parses "x,y,x,y,x,y[,...]" (at least 3 vertices) into `out`; returns an error message or "".
 std::string parsePolygon(const std::string& s, std::vector<cv::Point2f>* out);
 /// Checks the tracker options and range; returns an error message or "".

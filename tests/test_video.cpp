@@ -11,12 +11,14 @@
 
 #include "rsfm/camera.hpp"
 #include "rsfm/geometry.hpp"
+#include "rsfm/io/patches_io.hpp"
 #include "rsfm/io/tracks_io.hpp"
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
 #include "rsfm/rotation.hpp"
 #include "rsfm/sim/box_scene.hpp"
 #include "rsfm/vision/affine_lk.hpp"
+#include "rsfm/vision/patch_tracker.hpp"
 #include "rsfm/vision/frame_source.hpp"
 #include "rsfm/vision/klt_tracker.hpp"
 #include "rsfm/vision/plane_finder.hpp"
@@ -327,24 +329,9 @@ namespace {
 /// A real photograph (visp-images-data's Klimt, or a procedural texture when it is absent) warped
 /// by a known affine map about a point; three 21 x 21 patches aligned from a start 1 px off with
 /// no shape guess. Returns, per patch, the centre error and the largest corner error (px).
-std::vector<std::pair<double, double>> affineWarpErrors(bool cubic) {
-  cv::Mat img = cv::imread("/usr/share/visp-images-data/ViSP-images/Klimt/Klimt.pgm", cv::IMREAD_GRAYSCALE);
-  if (img.empty()) {
-    cv::Mat noise(40, 50, CV_8U);
-    cv::RNG(3).fill(noise, cv::RNG::UNIFORM, 0, 255);
-    cv::resize(noise, img, cv::Size(500, 400), 0, 0, cv::INTER_CUBIC);
-  }
-  cv::Mat f0;
-  img.convertTo(f0, CV_32F);
-  cv::GaussianBlur(f0, f0, cv::Size(0, 0), 1.0);
-  // Known warp about a centre c: x' = A (x - c) + c + d.
-  const Eigen::Vector2d c(f0.cols * 0.45, f0.rows * 0.5);
-  Eigen::Matrix2d A;
-  A << 1.06, 0.05, -0.04, 0.95;
-  const Eigen::Vector2d d(2.3, -1.7);
-  const Eigen::Vector2d t = c + d - A * c;
-  // The warped image, sampled exactly (double-precision bicubic, Keys a = -0.5): cv::warpAffine
-  // quantizes sub-pixel positions to 1/32 px, an error of the test image itself.
+/// f0 warped by x' = A x + t, sampled exactly (double-precision bicubic, Keys a = -0.5):
+/// cv::warpAffine quantizes sub-pixel positions to 1/32 px, an error of the test image itself.
+cv::Mat warpExactly(const cv::Mat& f0, const Eigen::Matrix2d& A, const Eigen::Vector2d& t) {
   cv::Mat f1(f0.size(), CV_32F, cv::Scalar(0));
   const Eigen::Matrix2d Ai = A.inverse();
   auto keys = [](double u) {
@@ -362,16 +349,37 @@ std::vector<std::pair<double, double>> affineWarpErrors(bool cubic) {
           acc += keys(src.x() - (x0 + i)) * keys(src.y() - (y0 + j)) * f0.at<float>(y0 + j, x0 + i);
       f1.at<float>(y, x) = static_cast<float>(acc);
     }
+  return f1;
+}
+
+/// The Klimt photograph (visp-images-data), blurred by sigma 1, as CV_32F; a smoothed noise
+/// image when the package is not installed.
+cv::Mat texturedImage() {
+  cv::Mat img = cv::imread("/usr/share/visp-images-data/ViSP-images/Klimt/Klimt.pgm", cv::IMREAD_GRAYSCALE);
+  if (img.empty()) {
+    cv::Mat noise(40, 50, CV_8U);
+    cv::RNG(3).fill(noise, cv::RNG::UNIFORM, 0, 255);
+    cv::resize(noise, img, cv::Size(500, 400), 0, 0, cv::INTER_CUBIC);
+  }
+  cv::Mat f0;
+  img.convertTo(f0, CV_32F);
+  cv::GaussianBlur(f0, f0, cv::Size(0, 0), 1.0);
+  return f0;
+}
+
+std::vector<std::pair<double, double>> affineWarpErrors(const vision::AffineLkOptions& o) {
+  const cv::Mat f0 = texturedImage();
+  // Known warp about a centre c: x' = A (x - c) + c + d.
+  const Eigen::Vector2d c(f0.cols * 0.45, f0.rows * 0.5);
+  Eigen::Matrix2d A;
+  A << 1.06, 0.05, -0.04, 0.95;
+  const Eigen::Vector2d d(2.3, -1.7);
+  const Eigen::Vector2d t = c + d - A * c;
+  const cv::Mat f1 = warpExactly(f0, A, t);
   std::vector<std::pair<double, double>> out;
   const std::vector<Eigen::Vector2d> centres = {c, c + Eigen::Vector2d(40, 25), c + Eigen::Vector2d(-60, 30)};
   for (const Eigen::Vector2d& p : centres) {
     vision::AffineTemplate tmpl;
-    vision::AffineLkOptions o;
-    o.radius = 10;
-    o.window_sigma = 10;
-    o.epsilon_px = 1e-3;
-    o.max_iterations = 50;
-    o.cubic = cubic;
     if (!tmpl.init(f0, p, o)) continue;
     Eigen::Matrix2d a = Eigen::Matrix2d::Identity();
     Eigen::Vector2d b = p + d + Eigen::Vector2d(0.8, -0.6);
@@ -394,25 +402,138 @@ std::vector<std::pair<double, double>> affineWarpErrors(bool cubic) {
 
 }  // namespace
 
-TEST(AffineLk, RecoversAKnownAffineWarpOfARealImage) {
-  // Bilinear sampling (the tracker's default, for speed): centre within 0.05 px, corners within
-  // 0.2 px (0.06-0.14 px observed; issue 5 asks 0.05 px at the corners).
-  const auto e = affineWarpErrors(false);
+TEST(AffineLk, SmallBilinearTemplates) {
+  // 21 x 21 templates (radius 10, window sigma 10) with bilinear sampling: centre within 0.05 px,
+  // corners only within 0.25 px (0.05-0.19 px observed): the interpolation error of the warped
+  // image, amplified by how weakly a small window fixes A.
+  vision::AffineLkOptions o;
+  o.radius = 10;
+  o.window_sigma = 10;
+  o.epsilon_px = 1e-3;
+  o.max_iterations = 50;
+  const auto e = affineWarpErrors(o);
   ASSERT_GE(e.size(), 2u);
   for (const auto& [centre, corner] : e) {
     EXPECT_LT(centre, 0.05);
-    EXPECT_LT(corner, 0.2);
+    EXPECT_LT(corner, 0.25);
   }
 }
 
-TEST(AffineLk, BicubicSampling) {
-  // Bicubic sampling (AffineLkOptions::cubic): centre within 0.05 px, corners within 0.15 px.
-  // Observed 0.03-0.10 px at the corners: barely better than bilinear, so interpolation is not
-  // what limits the corners; issue 5's 0.05 px at the corners is not reached yet.
-  const auto e = affineWarpErrors(true);
-  ASSERT_GE(e.size(), 2u);
+TEST(AffineLk, PatchTrackerRecoversAKnownWarpToFiveHundredthsOfAPixelAtTheCorners) {
+  // The patch tracker's alignment (PatchTrackerOptions: radius 15, window sigma 15, bicubic,
+  // 20 iterations to 0.002 px): a known affine warp of a real image (Klimt) is recovered within
+  // 0.05 px at the centre and at the 31 x 31 patch's corners (issue 5).
+  const auto e = affineWarpErrors(vision::PatchTrackerOptions{}.affine);
+  ASSERT_EQ(e.size(), 3u);
+  double worst = 0;
   for (const auto& [centre, corner] : e) {
     EXPECT_LT(centre, 0.05);
-    EXPECT_LT(corner, 0.15);
+    EXPECT_LT(corner, 0.05);
+    worst = std::max(worst, corner);
   }
+  std::printf("patch corners: worst %.4f px\n", worst);
+}
+
+TEST(PatchTracker, FollowsAKnownAffineSequence) {
+  // 12 frames of a real image under a growing affine warp about the image centre; every patch's
+  // warp from its first appearance must match the truth within 0.05 px at its corners.
+  const cv::Mat f0 = texturedImage();
+  const Eigen::Vector2d c(f0.cols / 2.0, f0.rows / 2.0);
+  vision::PatchTrackerOptions o;
+  o.max_patches = 12;
+  vision::PatchTracker tracker(o);
+  std::vector<Eigen::Matrix2d> As;
+  std::vector<Eigen::Vector2d> ts;
+  for (int k = 0; k < 12; ++k) {
+    Eigen::Matrix2d A;
+    A << 1.0 + 0.006 * k, 0.004 * k, -0.003 * k, 1.0 - 0.004 * k;
+    const Eigen::Vector2d t = c + Eigen::Vector2d(0.9 * k, -0.6 * k) - A * c;
+    As.push_back(A);
+    ts.push_back(t);
+    cv::Mat f8;
+    warpExactly(f0, A, t).convertTo(f8, CV_8U);
+    tracker.process(f8);
+  }
+  const PatchTracks pt = tracker.tracks();
+  ASSERT_EQ(pt.numFrames(), 12);
+  ASSERT_GE(pt.frames[0].size(), 6u);
+  double worst = 0;
+  int checked = 0;
+  for (const auto& p : pt.frames[11]) {
+    // Truth: first frame k0 where the patch appeared (all appear in frame 0 here).
+    ASSERT_NE(pt.find(0, p.id), nullptr);
+    const Eigen::Matrix2d A = As[11] * As[0].inverse();
+    const Eigen::Vector2d truth_c = As[11] * (As[0].inverse() * (p.px0 - ts[0])) + ts[11];
+    for (int sx : {-1, 1})
+      for (int sy : {-1, 1}) {
+        const Eigen::Vector2d k(sx * pt.radius, sy * pt.radius);
+        worst = std::max(worst, (p.A * k + p.px - (A * k + truth_c)).norm());
+      }
+    ++checked;
+  }
+  EXPECT_GE(checked, 6);
+  // 8-bit frames add quantization noise that the exact-warp test above does not have.
+  EXPECT_LT(worst, 0.1);
+  std::printf("patch tracker, 8-bit sequence: %d patches, worst corner %.4f px\n", checked, worst);
+}
+
+TEST(PatchesIo, RoundTripAndErrors) {
+  PatchTracks t;
+  t.image = {384, 288, 191.5, 143.5};
+  t.radius = 15;
+  t.first_frame = 3;
+  t.source = "unit test";
+  PatchObservation a;
+  a.id = 2;
+  a.px0 = {100.25, 80.5};
+  a.px = a.px0;
+  PatchObservation b = a;
+  b.px = {103.125, 79.75};
+  b.A << 1.01, 0.02, -0.015, 0.99;
+  b.rms = 0.12;
+  t.frames = {{a}, {b}};
+  const auto dir = std::filesystem::temp_directory_path() / "rsfm_patches_io";
+  std::filesystem::create_directories(dir);
+  const auto good = dir / "patches.csv";
+  {
+    std::ofstream f(good);
+    f << io::patchesToString(t);
+  }
+  const PatchTracks r = io::readPatches(good);
+  ASSERT_EQ(r.numFrames(), 2);
+  EXPECT_EQ(r.first_frame, 3);
+  EXPECT_EQ(r.radius, 15);
+  ASSERT_NE(r.find(1, 2), nullptr);
+  EXPECT_LT((r.find(1, 2)->A - b.A).norm(), 1e-6);
+  EXPECT_LT((r.find(1, 2)->px - b.px).norm(), 1e-4);
+  // Each broken line is named with its file and line number.
+  const std::string text = io::patchesToString(t);
+  auto expectError = [&](const std::string& bad, const std::string& what) {
+    const auto f = dir / "bad.csv";
+    {
+      std::ofstream o(f);
+      o << bad;
+    }
+    try {
+      io::readPatches(f);
+      ADD_FAILURE() << "no error for: " << what;
+    } catch (const io::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("bad.csv:"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+    }
+  };
+  auto replace = [&](std::string s, const std::string& from, const std::string& to) {
+    s.replace(s.find(from), from.size(), to);
+    return s;
+  };
+  expectError(replace(text, "# rsfm-patches 1", "# rsfm-tracks 1"), "not an rsfm patches file");
+  expectError(replace(text, "# radius 15\n", ""), "missing '# radius R'");
+  expectError(replace(text, "1.0100000", "abc"), "a11 is not a number");
+  expectError(replace(text, "1.0100000", "nan"), "a11 is not");
+  expectError(replace(text, "0.9900000", "-0.9900000"), "non-positive determinant");
+  expectError(replace(text, "103.1250", "104.1250"), "disagree");
+  expectError(text + "9,1,1,1,1,1,1,0,0,1,0,0,0\n", "outside the declared range");
+  expectError(replace(text, "4,2,100.2500", "4,2,101.2500"), "first-frame centre changed");
+  expectError(text.substr(0, text.find("frame,patch")) + "frame,patch\n", "expected the column header");
+  std::filesystem::remove_all(dir);
 }

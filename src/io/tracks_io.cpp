@@ -8,7 +8,13 @@
 #include <sstream>
 #include <vector>
 
+#include "csv_fields.hpp"
+
 namespace rsfm::io {
+
+using detail::parseDouble;
+using detail::parseInt;
+using detail::split;
 
 void writeTracks(std::ostream& os, const Tracks& t) {
   os << "# rsfm-tracks 1\n";
@@ -35,36 +41,6 @@ std::string tracksToString(const Tracks& t) {
   return os.str();
 }
 
-namespace {
-
-bool parseInt(std::string_view s, long long* v) {
-  while (!s.empty() && s.front() == ' ') s.remove_prefix(1);
-  while (!s.empty() && (s.back() == ' ' || s.back() == '\r')) s.remove_suffix(1);
-  if (s.empty()) return false;
-  auto r = std::from_chars(s.data(), s.data() + s.size(), *v);
-  return r.ec == std::errc() && r.ptr == s.data() + s.size();
-}
-
-bool parseDouble(std::string_view s, double* v) {
-  while (!s.empty() && s.front() == ' ') s.remove_prefix(1);
-  while (!s.empty() && (s.back() == ' ' || s.back() == '\r')) s.remove_suffix(1);
-  if (s.empty()) return false;
-  auto r = std::from_chars(s.data(), s.data() + s.size(), *v);
-  return r.ec == std::errc() && r.ptr == s.data() + s.size();
-}
-
-std::vector<std::string_view> split(std::string_view s, char sep) {
-  std::vector<std::string_view> out;
-  size_t b = 0;
-  for (size_t i = 0; i <= s.size(); ++i)
-    if (i == s.size() || s[i] == sep) {
-      out.push_back(s.substr(b, i - b));
-      b = i + 1;
-    }
-  return out;
-}
-
-}  // namespace
 
 Tracks readTracks(const std::filesystem::path& file) {
   std::error_code ec;

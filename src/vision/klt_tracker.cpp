@@ -164,40 +164,10 @@ Tracks KltTracker::tracks(int first_frame) const {
   return t;
 }
 
-}  // namespace rsfm::vision
-
-#include <fmt/format.h>
-
-#include "rsfm/io/input_error.hpp"
-#include "rsfm/vision/frame_source.hpp"
-
-namespace rsfm::vision {
-
 Tracks trackInput(const std::string& input, const TrackerOptions& options, FrameRange range,
                   const std::function<void(int, int)>& progress) {
-  FrameSource src(input);
   KltTracker tracker(options);
-  cv::Mat img;
-  int total = -1;
-  if (src.countHint() > 0) {
-    const int end = range.last >= 0 ? std::min(range.last, src.countHint() - 1) : src.countHint() - 1;
-    total = end - range.first + 1;
-  }
-  int used = 0;
-  while (src.read(&img)) {
-    if (src.index() < range.first) continue;
-    if (range.last >= 0 && src.index() > range.last) break;
-    tracker.process(img);
-    ++used;
-    if (progress) progress(used, total > 0 ? std::max(total, used) : -1);
-  }
-  if (used == 0)
-    throw io::InputError(fmt::format("{}: the frame range starts at {} but the input has {} frames", input,
-                                     range.first, src.index() + 1));
-  if (used < 2) throw io::InputError(fmt::format("{}: only one frame in range; tracking needs at least 2", input));
-  if (range.last >= 0 && src.index() < range.last && used < range.last - range.first + 1)
-    throw io::InputError(fmt::format("{}: the frame range ends at {} but the input has only {} frames", input,
-                                     range.last, src.index() + 1));
+  forEachFrame(input, range, [&](const cv::Mat& img) { tracker.process(img); }, progress);
   Tracks t = tracker.tracks(range.first);
   t.source = input;
   return t;

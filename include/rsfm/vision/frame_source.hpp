@@ -5,11 +5,18 @@
 #include <opencv2/videoio.hpp>
 
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
 
 namespace rsfm::vision {
+
+/// Frame range of a run: frames first..last of the input (0-based, inclusive; last < 0: to the end).
+struct FrameRange {
+  int first = 0;
+  int last = -1;
+};
 
 class FrameSource {
  public:
@@ -39,5 +46,11 @@ class FrameSource {
   double fps_ = 30.0;
   cv::Size size_;
 };
+
+/// Calls `fn` on every frame of `input` in `range`, in order; `progress(done, total)` after each
+/// (total = -1 when unknown). Throws io::InputError on bad input, a range that starts after the end
+/// or ends after it, or fewer than 2 frames.
+void forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,
+                  const std::function<void(int, int)>& progress = {});
 
 }  // namespace rsfm::vision

@@ -9,6 +9,7 @@
 
 #include "rsfm/track/tracks.hpp"
 #include "rsfm/vision/affine_lk.hpp"
+#include "rsfm/vision/frame_source.hpp"
 
 namespace rsfm::vision {
 
@@ -81,11 +82,6 @@ class KltTracker {
 
 namespace rsfm::vision {
 
-/// Frame range of a run: frames first..last of the input (0-based, inclusive; last < 0: to the end).
-struct FrameRange {
-  int first = 0;
-  int last = -1;
-};
 
 /// Tracks `input` (video, pattern or folder) over `range`. `progress(done, total)` is called per
 /// frame (total = -1 when unknown). Throws io::InputError on bad input (including a range that
