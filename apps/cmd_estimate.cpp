@@ -1,4 +1,4 @@
-// `rsfm estimate --tracks FILE` and `rsfm run INPUT`: plane finding, the recursive filter on the
+// `rsfm estimate --tracks FILE | --patches FILE` and `rsfm run INPUT [--model patches]`: plane finding, the recursive filter on the
 // tracks, and the report (docs/estimate.md, docs/outputs.md).
 #include <fmt/format.h>
 
@@ -10,6 +10,9 @@
 #include "cli_common.hpp"
 #include "rsfm/io/atomic_file.hpp"
 #include "rsfm/io/estimate_report.hpp"
+#include "rsfm/io/patch_report.hpp"
+#include "rsfm/io/patches_io.hpp"
+#include "rsfm/pipeline/patch_pipeline.hpp"
 #include "rsfm/io/tracks_io.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
 #include "rsfm/vision/overlay.hpp"
@@ -23,6 +26,9 @@ namespace {
 
 struct EstimateCli {
   std::string model = "planes";
+  bool patches = false;  ///< --model patches: Calway's patch filter on affine patches
+  PatchPipelineOptions patch;
+  std::string centres = "fused", measurement = "exact";
   TrackFilterOptions filter;
   vision::PlaneFinderOptions finder;
   std::string plane_rois;  ///< "x,y,...;x,y,..."
@@ -38,7 +44,22 @@ struct EstimateCli {
 };
 
 void addEstimateOptions(CLI::App* a, EstimateCli* e) {
-  a->add_option("--model", e->model, "point | plane (dominant plane) | planes (rigid multi-plane)")->capture_default_str();
+  a->add_option("--model", e->model,
+                "point | plane (dominant plane) | planes (rigid multi-plane) | patches (Calway's filter on affine patches)")
+      ->capture_default_str();
+  a->add_option("--patch-sigma-px", e->patch.sigma_px, "patches: centre noise sd (px)")->capture_default_str();
+  a->add_option("--sigma-affine", e->patch.sigma_affine, "patches: noise sd of each entry of the inter-frame map A")
+      ->capture_default_str();
+  a->add_option("--centres", e->centres, "patches: centres measured | predicted | fused (docs/patches.md)")
+      ->capture_default_str();
+  a->add_option("--measurement", e->measurement, "patches: affine measurement exact | instantaneous")->capture_default_str();
+  a->add_option("--anneal-frames", e->patch.anneal_frames, "patches: frames over which R is annealed (0: none)")
+      ->capture_default_str();
+  a->add_option("--patch-q-omega", e->patch.q_omega, "patches: process variance of the inter-frame rotation")
+      ->capture_default_str();
+  a->add_option("--patch-q-trans-rel", e->patch.q_trans_rel,
+                "patches: per-frame sd of the inter-frame translation's change, relative to the start depth")
+      ->capture_default_str();
   a->add_option("--focal-px", e->filter.focal_px, "known focal length in px (0: estimate it)")->capture_default_str();
   a->add_option("--focal0-px", e->filter.focal0_px, "initial focal guess in px (0: max(width, height))")
       ->capture_default_str();
@@ -74,8 +95,21 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
 }
 
 std::string finishEstimateOptions(EstimateCli* e) {
-  if (!parseTrackModel(e->model, &e->filter.model))
-    return "--model must be point, plane or planes, got '" + e->model + "'";
+  e->patches = e->model == "patches";
+  if (!e->patches && !parseTrackModel(e->model, &e->filter.model))
+    return "--model must be point, plane, planes or patches, got '" + e->model + "'";
+  if (!parsePatchCentres(e->centres, &e->patch.centres))
+    return "--centres must be measured, predicted or fused, got '" + e->centres + "'";
+  if (e->measurement == "exact") e->patch.measurement = AffineMeasurement::Exact;
+  else if (e->measurement == "instantaneous") e->patch.measurement = AffineMeasurement::Instantaneous;
+  else return "--measurement must be exact or instantaneous, got '" + e->measurement + "'";
+  if (!(e->patch.sigma_px > 0) || !(e->patch.sigma_affine > 0)) return "--patch-sigma-px and --sigma-affine must be positive";
+  if (!(e->patch.q_omega >= 0) || !(e->patch.q_trans_rel >= 0)) return "process variances must be >= 0";
+  if (e->patch.anneal_frames < 0) return "--anneal-frames must be >= 0";
+  if (!(e->filter.depth0 > 0)) return "--depth0 must be positive";
+  e->patch.focal_px = e->filter.focal_px;
+  e->patch.focal0_px = e->filter.focal0_px;
+  e->patch.depth0 = e->filter.depth0;
   ReferenceModel rm;
   if (!parseReferenceModel(e->reference, &rm)) return "--reference must be exact, inflate or refine";
   e->filter.filter.reference = rm;
@@ -92,6 +126,7 @@ std::string finishEstimateOptions(EstimateCli* e) {
   if (!(e->finder.ransac_px > 0)) return "--ransac-px must be positive";
   e->filter.filter.q_motion << e->q_trans, e->q_trans, e->q_trans, e->q_omega, e->q_omega, e->q_omega, e->q_beta;
   e->filter.filter.update.gate_probability = e->gate;
+  e->patch.gate_probability = e->gate;
   e->filter.filter.iterations = e->iterations;
   if (!e->plane_rois.empty()) {
     std::stringstream ss(e->plane_rois);
@@ -208,22 +243,83 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
   return 0;
 }
 
+/// The patch filter on affine patches + report (+ overlay when `overlay_input` is set).
+int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, const std::string& overlay_input,
+                           vision::FrameRange range, double t_start, bool write_patches) {
+  PatchPipelineOptions po = e.patch;
+  if (e.beta_sd0 >= 0) po.beta_sd0 = e.beta_sd0;
+  PatchRunResult res;
+  try {
+    res = runPatchTracks(tracks, po, e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
+  } catch (const std::invalid_argument& ex) {
+    return fail(kBadInput, ex.what());
+  } catch (const std::exception& ex) {
+    return fail(kRuntimeFailure, ex.what());
+  }
+  if (!res.ok()) return fail(kRuntimeFailure, "the patch filter stopped at " + res.stopped + " (no outputs written)");
+  io::PatchReport rep;
+  rep.tracks = &tracks;
+  rep.result = &res;
+  rep.command = invocation();
+  nlohmann::json summary;
+  try {
+    io::AtomicFileSet files;
+    rep.seconds = now() - t_start;
+    summary = io::writePatchReport(rep, e.out, &files, e.plots);
+    if (write_patches) files.write(std::filesystem::path(e.out) / "patches.csv", io::patchesToString(tracks));
+    if (!overlay_input.empty())
+      vision::writePatchOverlay(overlay_input, range, tracks, res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
+    files.commit();
+  } catch (const io::InputError& ex) {
+    return fail(kBadInput, ex.what());
+  } catch (const std::exception& ex) {
+    return fail(kRuntimeFailure, ex.what());
+  }
+  if (!e.quiet) {
+    const auto& ln = summary["last_frame_normals"];
+    fmt::print(stderr,
+               "estimate: {} frames, {} patches ({} joined, {} left), focal {:.1f} +- {:.1f} px; last frame: {} of {} patch "
+               "normals within 5 deg of their median (median {:.2f} deg); wrote {}/summary.json, trajectory.tum, "
+               "patch_normals.csv{}{}{}\n",
+               res.frames.size(), res.entered, res.joined, res.left, summary["focal_px"].get<double>(),
+               summary["focal_sd_px"].get<double>(), ln["within_5deg"].get<int>(),
+               summary["patches"]["live_last_frame"].get<int>(), ln["angle_to_median_deg"]["median"].get<double>(), e.out,
+               e.plots ? ", patch_run.png" : "", write_patches ? ", patches.csv" : "", overlay_input.empty() ? "" : ", overlay.mp4");
+  }
+  return 0;
+}
+
 }  // namespace
 
 void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
   {
     struct Cli {
       EstimateCli e;
-      std::string tracks;
+      std::string tracks, patches;
     };
     auto c = std::make_shared<Cli>();
-    auto* es = app.add_subcommand("estimate", "camera motion, focal length and planes from a tracks file");
-    es->add_option("--tracks", c->tracks, "tracks file (docs/tracks.md)")->required();
+    auto* es = app.add_subcommand("estimate", "camera motion, focal length and planes from a tracks (or patches) file");
+    auto* ot = es->add_option("--tracks", c->tracks, "tracks file (docs/tracks.md)");
+    auto* op = es->add_option("--patches", c->patches, "patches file (docs/tracks.md): implies --model patches");
+    ot->excludes(op);
+    op->excludes(ot);
     addEstimateOptions(es, &c->e);
     commands.push_back({es, [c]() -> int {
       const double t0 = now();
+      if (c->tracks.empty() && c->patches.empty()) return fail(kBadInput, "one of --tracks or --patches is required");
+      if (!c->patches.empty()) c->e.model = "patches";
       if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);
+      if (c->e.patches && c->patches.empty()) return fail(kBadInput, "--model patches needs --patches FILE (rsfm track --patches)");
       if (auto m = io::ensureWritableDirectory(c->e.out); !m.empty()) return fail(kBadInput, m);
+      if (c->e.patches) {
+        PatchTracks pt;
+        try {
+          pt = io::readPatches(c->patches);
+        } catch (const std::exception& ex) {
+          return fail(kBadInput, ex.what());
+        }
+        return patchEstimateAndReport(pt, c->e, "", {}, t0, false);
+      }
       Tracks tracks;
       try {
         tracks = io::readTracks(c->tracks);
@@ -245,12 +341,25 @@ void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
     rn->add_option("input", c->input, "video file, image pattern (frames/img%04d.png) or folder of images")->required();
     addEstimateOptions(rn, &c->e);
     addTrackerOptions(rn, &c->t);
+    addPatchTrackerOptions(rn, &c->t);
     rn->add_flag("!--no-overlay", c->overlay, "skip overlay.mp4");
     commands.push_back({rn, [c]() -> int {
       const double t0 = now();
       if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);
       if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
       if (auto m = io::ensureWritableDirectory(c->e.out); !m.empty()) return fail(kBadInput, m);
+      if (c->e.patches) {
+        PatchTracks pt;
+        try {
+          pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range,
+                                         c->e.quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames"));
+        } catch (const io::InputError& ex) {
+          return fail(kBadInput, ex.what());
+        } catch (const std::exception& ex) {
+          return fail(kRuntimeFailure, ex.what());
+        }
+        return patchEstimateAndReport(pt, c->e, c->overlay ? c->input : "", c->t.range, t0, true);
+      }
       Tracks tracks;
       try {
         tracks = vision::trackInput(c->input, c->t.tracker, c->t.range,

@@ -62,6 +62,7 @@ PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
     fs.health |= kInvalidRotation;
     return fs;
   }
+  fs.used = used;
   if (fs.health != kHealthy) return fs;
   // 3. Centres into frame k, pose accumulation.
   const Eigen::Matrix<double, 7, 1> mp = ekf_.x().head<7>();

@@ -389,7 +389,9 @@ TEST(PatchFilter, RemovingTheGaugePatchMovesTheGauge) {
   EXPECT_TRUE(f->ekf().fixed()[ig]);
   EXPECT_EQ(f->ekf().P().row(ig).norm(), 0.0);
   for (int k = 0; k < f->numPatches(); ++k)
-    if (k != g) EXPECT_GT(f->ekf().P()(PatchModel::p4Index(k), PatchModel::p4Index(k)), 0.0);
+    if (k != g) {
+      EXPECT_GT(f->ekf().P()(PatchModel::p4Index(k), PatchModel::p4Index(k)), 0.0);
+    }
   // New patch joins with a vague prior.
   const int slot = f->addPatch({0.05, 0.02}, {0.0, 0.0, 0.5}, Eigen::Matrix3d::Identity());
   EXPECT_EQ(slot, K - 1);

@@ -90,6 +90,7 @@ struct PatchFrameStats {
   std::uint32_t health = kHealthy;
   bool beta_projected = false;
   int iterations = 1;  ///< measurement linearizations used
+  std::vector<int> used;  ///< observation index of each measurement block (update.gated_mask is aligned)
   bool ok() const { return health == kHealthy && update.applied && transition == MeasureStatus::Ok; }
 };
 

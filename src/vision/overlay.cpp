@@ -118,4 +118,62 @@ void writeOverlay(const std::string& input, FrameRange range, const Tracks& trac
   if (fi == 0) throw std::runtime_error(input + ": no frame to draw the overlay on");
 }
 
+void writePatchOverlay(const std::string& input, FrameRange range, const PatchTracks& tracks, const PatchRunResult& result,
+                       const std::filesystem::path& path) {
+  FrameSource src(input);
+  const double s = result.scale_px;
+  cv::VideoWriter vw;
+  cv::Mat img, bgr;
+  size_t fi = 0;
+  const Eigen::Vector2d cpx(tracks.image.cx, tracks.image.cy);
+  while (src.read(&img) && fi < result.frames.size()) {
+    if (src.index() < range.first) continue;
+    const int k = src.index() - range.first;
+    if (img.channels() == 1) cv::cvtColor(img, bgr, cv::COLOR_GRAY2BGR);
+    else bgr = img.clone();
+    if (!vw.isOpened()) {
+      vw.open(path.string(), cv::VideoWriter::fourcc('m', 'p', '4', 'v'), src.fps(), bgr.size());
+      if (!vw.isOpened()) throw std::runtime_error(fmt::format("{}: cannot open a video writer (mp4v)", path.string()));
+    }
+    const PatchRunFrame& f = result.frames[fi];
+    const NormalAgreement agree = normalAgreement(f);
+    for (size_t i = 0; i < f.patches.size(); ++i) {
+      const PatchEstimate& e = f.patches[i];
+      const PatchObservation* ob = tracks.find(k, e.id);
+      const bool good = agree.angle_deg[i] <= 5.0;
+      const cv::Scalar colour = good ? cv::Scalar(0, 220, 0) : cv::Scalar(0, 140, 255);
+      if (ob) {  // the warped square
+        const double r = tracks.radius;
+        std::vector<cv::Point> sq;
+        for (const Eigen::Vector2d& q : {Eigen::Vector2d(-r, -r), Eigen::Vector2d(r, -r), Eigen::Vector2d(r, r), Eigen::Vector2d(-r, r)}) {
+          const Eigen::Vector2d p = ob->A * q + ob->px;
+          sq.emplace_back(cvRound(p.x()), cvRound(p.y()));
+        }
+        cv::polylines(bgr, std::vector<std::vector<cv::Point>>{sq}, true, {200, 200, 200}, 1, cv::LINE_AA);
+      }
+      // The normal: from the centre's 3-D point (A&P) a segment of depth / 5 towards the camera.
+      const Eigen::Vector2d uv = (e.px - cpx) / s;
+      const double Z = e.depth, w0 = 1.0 + f.beta * Z;
+      if (!(w0 > 0)) continue;
+      const Eigen::Vector3d X(uv.x() * w0, uv.y() * w0, Z);
+      const Eigen::Vector3d Y = X - 0.2 * std::abs(Z + 1.0 / f.beta) * e.normal;
+      const double w1 = 1.0 + f.beta * Y.z();
+      if (!(w1 > 1e-6)) continue;
+      const Eigen::Vector2d tip = Y.head<2>() / w1 * s + cpx;
+      if (!tip.allFinite() || tip.cwiseAbs().maxCoeff() > 1e5) continue;
+      const cv::Point2f a(static_cast<float>(e.px.x()), static_cast<float>(e.px.y()));
+      cv::arrowedLine(bgr, a, cv::Point2f(static_cast<float>(tip.x()), static_cast<float>(tip.y())), colour, 2, cv::LINE_AA, 0,
+                      0.25);
+      cv::circle(bgr, a, 2, colour, -1, cv::LINE_AA);
+    }
+    const std::string text = fmt::format("frame {}  f = {:.0f} px  {} patches, {} within 5 deg", f.frame, s / f.beta,
+                                         f.patches.size(), agree.within_5deg);
+    cv::putText(bgr, text, {10, 22}, cv::FONT_HERSHEY_SIMPLEX, 0.5, {255, 255, 255}, 2, cv::LINE_AA);
+    cv::putText(bgr, text, {10, 22}, cv::FONT_HERSHEY_SIMPLEX, 0.5, {0, 0, 0}, 1, cv::LINE_AA);
+    vw.write(bgr);
+    ++fi;
+  }
+  if (fi == 0) throw std::runtime_error(input + ": no frame to draw the overlay on");
+}
+
 }  // namespace rsfm::vision

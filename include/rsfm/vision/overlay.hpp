@@ -6,7 +6,9 @@
 #include <string>
 #include <vector>
 
+#include "rsfm/pipeline/patch_pipeline.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
+#include "rsfm/track/patches.hpp"
 #include "rsfm/track/tracks.hpp"
 #include "rsfm/vision/klt_tracker.hpp"
 
@@ -16,5 +18,12 @@ namespace rsfm::vision {
 /// (codec mp4v; the container follows the extension). Throws io::InputError / std::runtime_error.
 void writeOverlay(const std::string& input, FrameRange range, const Tracks& tracks, const std::vector<int>& labels,
                   const TrackFilterResult& result, const std::filesystem::path& path);
+
+/// Patch overlay: each live patch drawn as its warped square (the tracker's A) and its estimated
+/// normal as a line from the centre towards the camera (a 3-D segment of 1/5 of the patch's
+/// depth, projected with that frame's focal length), green within 5 degrees of the median normal
+/// of the frame's patches, orange beyond.
+void writePatchOverlay(const std::string& input, FrameRange range, const PatchTracks& tracks, const PatchRunResult& result,
+                       const std::filesystem::path& path);
 
 }  // namespace rsfm::vision
