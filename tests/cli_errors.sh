@@ -215,6 +215,23 @@ check "estimate: fewer than 5 points (manual planes)" 2 "$V4" -- estimate --trac
 check "estimate: bad model" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --model cubes --quiet
 check "estimate: negative focal" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --focal-px -3 --quiet
 
+# Affine patches (docs/tracks.md "patches.csv", docs/patches.md).
+check "experiment patches: negative noise" 2 "$D" -- experiment patches --out "$D" --plane-noise 0.1,-0.2
+check "experiment patches: bad centres" 2 "$D" -- experiment patches --out "$D" --centres somewhere
+check "experiment patches: too few patches" 2 "$D" -- experiment patches --out "$D" --sphere-patches 2
+check "track --patches: radius 1" 2 "$V4" -- track "$TMP/gap/g%d.pgm" --patches --patch-radius 1 --out "$V4" --quiet
+check "estimate: missing patches file" 2 "$V4" -- estimate --patches "$T4/none.csv" --out "$V4" --quiet
+check "estimate: tracks and patches" 2 "$V4" -- estimate --patches "$T4/four.csv" --tracks "$T4/four.csv" --out "$V4" --quiet
+check "estimate: model patches without a patches file" 2 "$V4" -- estimate --tracks "$T4/four.csv" --model patches --out "$V4" --quiet
+printf '# rsfm-patches 1\n# image_size 640 480\n# frames 0 9\n# radius 15\nframe,patch,x0,y0,x,y,a11,a12,a21,a22,tx,ty,rms\n0,0,10,10,10,10,1,0,0,1,0,0,0\n1,0,10,10,11,10,1,0,0,-1,1,20,0\n' >"$T4/badp.csv"
+check "estimate: patches file with a mirrored map" 2 "$V4" -- estimate --patches "$T4/badp.csv" --out "$V4" --quiet
+grep -q "badp.csv:7: the affine map A has a non-positive determinant" "$TMP/err.txt" ||
+  { fail=$((fail + 1)); echo "FAIL malformed patches message lacks file:line: $(cat "$TMP/err.txt")"; }
+printf '# rsfm-patches 1\n# image_size 640 480\n# frames 0 3\n# radius 15\nframe,patch,x0,y0,x,y,a11,a12,a21,a22,tx,ty,rms\n' >"$T4/twop.csv"
+for k in 0 1 2 3; do for i in 0 1; do echo "$k,$i,$((100 + 200 * i)),100,$((100 + 200 * i + k)),100,1,0,0,1,$k,0,0" >>"$T4/twop.csv"; done; done
+check "estimate: two patches (the filter needs 3)" 2 "$V4" -- estimate --patches "$T4/twop.csv" --out "$V4" --quiet
+check "estimate: bad measurement" 2 "$V4" -- estimate --patches "$T4/twop.csv" --measurement approximate --out "$V4" --quiet
+
 # --help succeeds.
 if "$RSFM" experiment table1 --help >/dev/null 2>&1; then pass=$((pass + 1)); echo "ok   --help"; else fail=$((fail + 1)); echo "FAIL --help"; fi
 echo "$pass passed, $fail failed"
