@@ -247,7 +247,40 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
 int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, const std::string& overlay_input,
                            vision::FrameRange range, double t_start, bool write_patches) {
   PatchPipelineOptions po = e.patch;
-  if (e.beta_sd0 >= 0) po.beta_sd0 = e.beta_sd0;
+  po.beta_sd0 = e.filter.beta_sd0;
+  nlohmann::json start_json;
+  if (e.init && po.focal_px <= 0 && po.focal0_px <= 0) {
+    // Focal start as for the plane models: homographies of the patch centres (as point tracks)
+    // decomposed over a focal grid (vision/plane_init.hpp). Only the focal length is taken: every
+    // patch still starts fronto-parallel, so its normal is the filter's own estimate.
+    Tracks centres;
+    centres.image = tracks.image;
+    centres.first_frame = tracks.first_frame;
+    for (const auto& f : tracks.frames) {
+      std::vector<TrackPoint> pts;
+      for (const auto& p : f) pts.push_back({p.id, p.px});
+      centres.frames.push_back(std::move(pts));
+    }
+    vision::PlaneStart start;
+    try {
+      vision::PlaneFinderOptions fo = e.finder;
+      fo.min_plane_tracks = std::min(fo.min_plane_tracks, 8);
+      const vision::PlaneFinding pf = vision::findPlanes(centres, fo);
+      if (pf.numPlanes() > 0) start = vision::planeStart(centres, pf, 0.0);
+      else start.note = "no plane among the patch centres";
+    } catch (const std::exception& ex) {
+      start.note = ex.what();
+    }
+    if (start.ok) {
+      po.focal0_px = start.focal_px;
+      po.beta_sd0 = 0.1;
+      start_json = {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}};
+    }
+    if (!e.quiet)
+      fmt::print(stderr, "start: {}\n",
+                 start.ok ? fmt::format("focal {:.0f} px from homographies of the patch centres", start.focal_px)
+                          : start.note + "; focal starts at max(width, height)");
+  }
   PatchRunResult res;
   try {
     res = runPatchTracks(tracks, po, e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
@@ -261,6 +294,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
   rep.tracks = &tracks;
   rep.result = &res;
   rep.command = invocation();
+  if (!start_json.is_null()) rep.extra["start"] = start_json;
   nlohmann::json summary;
   try {
     io::AtomicFileSet files;
