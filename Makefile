@@ -23,11 +23,12 @@ build: configure
 demo: build
 	bash scripts/demo.sh $(BUILD) $(OUT)
 
-# The paper's synthetic experiments (issue 2/3): Table 1, the box scene, two objects.
+# The papers' synthetic experiments (issues 2, 3, 5): Table 1, the box scene, two objects, patches.
 experiments: build
 	./$(BUILD)/rsfm experiment table1 --out $(OUT)/table1
 	./$(BUILD)/rsfm experiment planes --out $(OUT)/planes
 	./$(BUILD)/rsfm experiment two-object --out $(OUT)/two-object
+	./$(BUILD)/rsfm experiment patches --out $(OUT)/patches
 
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j$(JOBS)
