@@ -1,7 +1,7 @@
 // One measurement update (linearize all points + EKF update) of the plane and point models.
 // The plane model's update is O(N) (information form, state size fixed at 10): its time per
 // point, reported as the counter "time_per_point", stays flat as N grows. The point model's state
-// grows with N (7 + N), so its update is O(N^3).
+// grows with N (7 + N), so its update is O(N^3); so does the patch filter's (7 + 3K).
 //   build/rsfm_bench --benchmark_counters_tabular=true
 #include <benchmark/benchmark.h>
 
@@ -9,6 +9,7 @@
 
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/models/point_model.hpp"
+#include "rsfm/patch_filter.hpp"
 #include "rsfm/recursive_filter.hpp"
 
 namespace {
@@ -84,8 +85,46 @@ void BM_PointUpdate(benchmark::State& state) {
       static_cast<double>(state.iterations()) * n, benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
 }
 
+/// One frame of Calway's patch filter (update with 6 rows per patch, centres, transition
+/// F P F^T): state 7 + 3K, so O(K^3) per frame like the point model.
+void BM_PatchStep(benchmark::State& state) {
+  const int K = static_cast<int>(state.range(0));
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> U(-0.6, 0.6);
+  std::vector<Eigen::Vector2d> c;
+  for (int k = 0; k < K; ++k) c.emplace_back(U(rng), U(rng));
+  const int n = 7 + 3 * K;
+  Eigen::VectorXd x0 = Eigen::VectorXd::Zero(n);
+  x0.head<7>() << 0.01, 0.005, 0.002, 0.001, -0.002, 0.001, 1.0;
+  Eigen::MatrixXd P0 = Eigen::MatrixXd::Identity(n, n) * 1e-4;
+  for (int k = 0; k < K; ++k) {
+    const int i = PatchModel::structureIndex(k);
+    x0.segment<3>(i) << 0.1, -0.05, 0.6;
+    P0.block<3, 3>(i, i) = Eigen::Matrix3d::Identity() * 0.1;
+  }
+  std::vector<AffineObservation> obs(K);
+  for (int k = 0; k < K; ++k) {
+    Vector6d z;
+    PatchModel::exact(x0.head<7>(), x0.segment<3>(PatchModel::structureIndex(k)), c[k], &z, nullptr);
+    obs[k] = {k, z};
+  }
+  PatchFilterOptions fo;
+  fo.measurement_sd << 1e-3, 1e-3, 3e-3, 3e-3, 3e-3, 3e-3;
+  const PatchModel model(c);
+  for (auto _ : state) {
+    state.PauseTiming();
+    PatchFilter f(model, Ekf(x0, P0, std::vector<bool>(n, false)), 0, fo);
+    state.ResumeTiming();
+    PatchFrameStats fs = f.step(obs);
+    benchmark::DoNotOptimize(fs);
+    if (!fs.ok()) state.SkipWithError("patch step failed");
+  }
+  state.counters["patches"] = K;
+}
+
 }  // namespace
 
+BENCHMARK(BM_PatchStep)->Arg(10)->Arg(50)->Arg(100)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_PlaneUpdate)->Arg(30)->Arg(300)->Arg(3000)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_PointUpdate)->Arg(30)->Arg(300)->Unit(benchmark::kMicrosecond);
 BENCHMARK_MAIN();
