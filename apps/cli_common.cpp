@@ -1,11 +1,24 @@
 #include "cli_common.hpp"
 
+#include "rsfm/io/input_error.hpp"
+
 #include <fmt/format.h>
 #include <unistd.h>
 
 #include <cstdio>
 
 namespace rsfm::cli {
+
+int guarded(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const io::InputError& e) {
+    return fail(kBadInput, e.what());
+  } catch (const std::exception& e) {
+    return fail(kRuntimeFailure, e.what());
+  }
+  return 0;
+}
 
 int fail(int code, const std::string& msg) {
   fmt::print(stderr, "rsfm: error: {}\n", msg);

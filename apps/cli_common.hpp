@@ -17,6 +17,10 @@ constexpr int kRuntimeFailure = 1;
 /// Prints `rsfm: error: MSG` on one line of stderr and returns `code`.
 int fail(int code, const std::string& msg);
 
+/// Runs `f`: an io::InputError becomes `rsfm: error: ...` with kBadInput, any other exception the
+/// same with kRuntimeFailure. Returns 0 when `f` returned normally.
+int guarded(const std::function<void()>& f);
+
 /// Progress on stderr: a rewritten line on a terminal, else one line per 10 %.
 /// `unit` names what is counted ("trials", "frames").
 std::function<void(int, int)> progressReporter(std::string name, std::string unit = "trials");

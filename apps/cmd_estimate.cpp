@@ -382,27 +382,14 @@ void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
       if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);
       if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
       if (auto m = io::ensureWritableDirectory(c->e.out); !m.empty()) return fail(kBadInput, m);
+      const auto progress = c->e.quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames");
       if (c->e.patches) {
         PatchTracks pt;
-        try {
-          pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range,
-                                         c->e.quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames"));
-        } catch (const io::InputError& ex) {
-          return fail(kBadInput, ex.what());
-        } catch (const std::exception& ex) {
-          return fail(kRuntimeFailure, ex.what());
-        }
+        if (int rc = guarded([&] { pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range, progress); })) return rc;
         return patchEstimateAndReport(pt, c->e, c->overlay ? c->input : "", c->t.range, t0, true);
       }
       Tracks tracks;
-      try {
-        tracks = vision::trackInput(c->input, c->t.tracker, c->t.range,
-                                    c->e.quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames"));
-      } catch (const io::InputError& ex) {
-        return fail(kBadInput, ex.what());
-      } catch (const std::exception& ex) {
-        return fail(kRuntimeFailure, ex.what());
-      }
+      if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
       // The tracks are part of the report.
       return estimateAndReport(tracks, c->e, c->overlay ? c->input : "", c->t.range, t0, true);
     }});

@@ -104,23 +104,12 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
   commands.push_back({tr, [c]() -> int {
     if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
     if (auto m = io::ensureWritableDirectory(c->out); !m.empty()) return fail(kBadInput, m);
+    const auto progress = c->quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames");
+    const auto out = std::filesystem::path(c->out);
     if (c->patches) {
       PatchTracks pt;
-      try {
-        pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range,
-                                       c->quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames"));
-      } catch (const io::InputError& e) {
-        return fail(kBadInput, e.what());
-      } catch (const std::exception& e) {
-        return fail(kRuntimeFailure, e.what());
-      }
-      try {
-        io::AtomicFileSet files;
-        files.write(std::filesystem::path(c->out) / "patches.csv", io::patchesToString(pt));
-        files.commit();
-      } catch (const std::exception& e) {
-        return fail(kRuntimeFailure, e.what());
-      }
+      if (int rc = guarded([&] { pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range, progress); })) return rc;
+      if (int rc = guarded([&] { io::writeAllOrNothing({{out / "patches.csv", io::patchesToString(pt)}}); })) return rc;
       if (!c->quiet) {
         int ids = 0;
         for (const auto& f : pt.frames)
@@ -131,21 +120,8 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
       return 0;
     }
     Tracks tracks;
-    try {
-      tracks = vision::trackInput(c->input, c->t.tracker, c->t.range,
-                                  c->quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames"));
-    } catch (const io::InputError& e) {
-      return fail(kBadInput, e.what());
-    } catch (const std::exception& e) {
-      return fail(kRuntimeFailure, e.what());
-    }
-    try {
-      io::AtomicFileSet files;
-      files.write(std::filesystem::path(c->out) / "tracks.csv", io::tracksToString(tracks));
-      files.commit();
-    } catch (const std::exception& e) {
-      return fail(kRuntimeFailure, e.what());
-    }
+    if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
+    if (int rc = guarded([&] { io::writeAllOrNothing({{out / "tracks.csv", io::tracksToString(tracks)}}); })) return rc;
     const auto spans = trackSpans(tracks);
     if (!c->quiet)
       fmt::print(stderr, "track: {} frames, {} tracks; wrote {}/tracks.csv\n", tracks.numFrames(), spans.size(), c->out);

@@ -48,6 +48,12 @@ void AtomicFileSet::abort() {
   done_ = true;
 }
 
+void writeAllOrNothing(const std::vector<std::pair<std::filesystem::path, std::string>>& files) {
+  AtomicFileSet set;
+  for (const auto& [path, text] : files) set.write(path, text);
+  set.commit();
+}
+
 std::string ensureWritableDirectory(const fs::path& dir) {
   std::error_code ec;
   if (fs::exists(dir, ec) && !fs::is_directory(dir, ec))

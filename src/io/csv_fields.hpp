@@ -1,9 +1,20 @@
 #pragma once
 // Field parsing shared by the CSV readers of rsfm/io (internal header).
+#include <fmt/format.h>
+
 #include <charconv>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <ostream>
+#include <sstream>
+#include <string>
 #include <string_view>
 #include <system_error>
 #include <vector>
+
+#include "rsfm/io/input_error.hpp"
+#include "rsfm/track/tracks.hpp"
 
 namespace rsfm::io::detail {
 
@@ -34,5 +45,81 @@ inline std::vector<std::string_view> split(std::string_view s, char sep) {
   return out;
 }
 
+
+/// Opens a tracks/patches file for reading; InputError when missing, a directory or unreadable.
+inline std::ifstream openCsv(const std::filesystem::path& file, const char* what) {
+  std::error_code ec;
+  if (!std::filesystem::exists(file, ec)) throw inputError(file, 0, "no such file");
+  if (std::filesystem::is_directory(file, ec)) throw inputError(file, 0, fmt::format("is a directory, not a {} file", what));
+  std::ifstream in(file);
+  if (!in) throw inputError(file, 0, "cannot be opened");
+  return in;
+}
+
+/// Writes the shared '#' header lines (the caller adds format-specific ones and the columns).
+inline void writeCsvHeader(std::ostream& os, const char* magic, const ImageInfo& image, int first_frame, int frames,
+                           std::string source) {
+  os << "# " << magic << " 1\n";
+  os << fmt::format("# image_size {} {}\n", image.width, image.height);
+  os << fmt::format("# principal_point {} {}\n", image.cx, image.cy);
+  os << fmt::format("# frames {} {}\n", first_frame, first_frame + frames - 1);
+  for (char& c : source)
+    if (c == '\n' || c == '\r') c = ' ';
+  if (!source.empty()) os << "# source " << source << "\n";
+}
+
+/// The '#' header shared by tracks.csv and patches.csv: "# <magic> 1" first, then image_size,
+/// principal_point, frames, source (other '#' lines are comments or format-specific keys).
+struct CsvHeader {
+  std::string magic;  ///< "rsfm-tracks" or "rsfm-patches"
+  ImageInfo image;
+  int first_frame = 0;
+  long long last_frame = 0;
+  std::string source;
+  bool version = false, size = false, pp = false, frames = false;
+  std::string name() const { return magic.substr(magic.find('-') + 1); }  ///< "tracks" / "patches"
+
+  /// Handles one '#' line (text after '#', key already read from `ss`). Returns false when the
+  /// key is not one of the shared ones (the caller may handle it). Throws InputError.
+  bool parse(const std::string& key, std::istringstream& ss, const std::filesystem::path& file, int ln) {
+    if (!version) {
+      int v = 0;
+      if (key != magic || !(ss >> v))
+        throw inputError(file, ln, fmt::format("not an rsfm {} file (first line must be '# {} 1')", name(), magic));
+      if (v != 1) throw inputError(file, ln, fmt::format("unsupported {} format version {} (this rsfm reads 1)", name(), v));
+      version = true;
+    } else if (key == "image_size") {
+      if (!(ss >> image.width >> image.height) || image.width <= 0 || image.height <= 0)
+        throw inputError(file, ln, "image_size needs two positive integers (width height)");
+      size = true;
+    } else if (key == "principal_point") {
+      if (!(ss >> image.cx >> image.cy) || !std::isfinite(image.cx) || !std::isfinite(image.cy))
+        throw inputError(file, ln, "principal_point needs two finite numbers (cx cy)");
+      pp = true;
+    } else if (key == "frames") {
+      long long a = 0, b = 0;
+      if (!(ss >> a >> b) || a < 0 || b < a) throw inputError(file, ln, "frames needs first <= last, both >= 0");
+      first_frame = static_cast<int>(a);
+      last_frame = b;
+      frames = true;
+    } else if (key == "source") {
+      std::getline(ss >> std::ws, source);
+    } else {
+      return false;
+    }
+    return true;
+  }
+
+  /// At the first non-'#' line: the required keys must have come; defaults the principal point.
+  void finish(const std::filesystem::path& file, int ln) {
+    if (!version) throw inputError(file, ln, fmt::format("not an rsfm {} file (first line must be '# {} 1')", name(), magic));
+    if (!size) throw inputError(file, ln, "missing '# image_size W H' header line");
+    if (!frames) throw inputError(file, ln, "missing '# frames FIRST LAST' header line");
+    if (!pp) {
+      image.cx = (image.width - 1) / 2.0;
+      image.cy = (image.height - 1) / 2.0;
+    }
+  }
+};
 
 }  // namespace rsfm::io::detail

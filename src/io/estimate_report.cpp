@@ -36,23 +36,30 @@ std::string num(double v, int prec = 6) { return formatNumber(v, prec); }
 
 }  // namespace
 
+nlohmann::json summaryHead(const std::string& model, int frames, int first_frame, int last_frame, const ImageInfo& image,
+                           double scale_px, double beta, double var_beta) {
+  nlohmann::json j;
+  j["format"] = "rsfm-summary";
+  j["version"] = 1;
+  j["model"] = model;
+  j["frames"] = frames;
+  j["first_frame"] = first_frame;
+  j["last_frame"] = last_frame;
+  j["image"] = {{"width", image.width}, {"height", image.height}};
+  j["principal_point_px"] = {image.cx, image.cy};
+  j["scale_px"] = scale_px;
+  j["focal_px"] = scale_px / beta;
+  j["focal_sd_px"] = scale_px * std::sqrt(std::max(0.0, var_beta)) / (beta * beta);
+  j["beta"] = beta;
+  return j;
+}
+
 nlohmann::json estimateSummary(const EstimateReport& r) {
   const Tracks& t = *r.tracks;
   const TrackFilterResult& res = *r.result;
   const TrackFrame& last = res.frames.back();
-  nlohmann::json j;
-  j["format"] = "rsfm-summary";
-  j["version"] = 1;
-  j["model"] = toString(r.model);
-  j["frames"] = static_cast<int>(res.frames.size());
-  j["first_frame"] = res.frames.front().frame;
-  j["last_frame"] = last.frame;
-  j["image"] = {{"width", t.image.width}, {"height", t.image.height}};
-  j["principal_point_px"] = {t.image.cx, t.image.cy};
-  j["scale_px"] = res.scale_px;
-  j["focal_px"] = res.scale_px / last.beta;
-  j["focal_sd_px"] = res.scale_px * std::sqrt(std::max(0.0, last.var_beta)) / (last.beta * last.beta);
-  j["beta"] = last.beta;
+  nlohmann::json j = summaryHead(toString(r.model), static_cast<int>(res.frames.size()), res.frames.front().frame,
+                                 last.frame, t.image, res.scale_px, last.beta, last.var_beta);
   nlohmann::json normals = nlohmann::json::array(), dist = nlohmann::json::array(), nsd = nlohmann::json::array();
   for (int p = 0; p < static_cast<int>(last.N.size()); ++p) {
     const MetricPlane mp = metricPlane(last.N[p], last.beta, covBetaN(last, p));

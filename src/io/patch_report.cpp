@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "rsfm/geometry.hpp"
+#include "rsfm/io/estimate_report.hpp"
 #include "rsfm/io/report.hpp"
 #include "rsfm/io/tum.hpp"
 #include "rsfm/rotation.hpp"
@@ -25,19 +26,8 @@ nlohmann::json patchSummary(const PatchReport& r) {
   const PatchTracks& t = *r.tracks;
   const PatchRunResult& res = *r.result;
   const PatchRunFrame& last = res.frames.back();
-  nlohmann::json j;
-  j["format"] = "rsfm-summary";
-  j["version"] = 1;
-  j["model"] = "patches";
-  j["frames"] = static_cast<int>(res.frames.size());
-  j["first_frame"] = res.frames.front().frame;
-  j["last_frame"] = last.frame;
-  j["image"] = {{"width", t.image.width}, {"height", t.image.height}};
-  j["principal_point_px"] = {t.image.cx, t.image.cy};
-  j["scale_px"] = res.scale_px;
-  j["focal_px"] = res.scale_px / last.beta;
-  j["focal_sd_px"] = res.scale_px * std::sqrt(std::max(0.0, last.var_beta)) / (last.beta * last.beta);
-  j["beta"] = last.beta;
+  nlohmann::json j = summaryHead("patches", static_cast<int>(res.frames.size()), res.frames.front().frame, last.frame,
+                                 t.image, res.scale_px, last.beta, last.var_beta);
   // No planes: the per-plane lists of the shared schema stay empty.
   j["planes"] = nlohmann::json::array();
   j["plane_distances"] = nlohmann::json::array();

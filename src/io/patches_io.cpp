@@ -22,15 +22,8 @@ constexpr const char* kColumns = "frame,patch,x0,y0,x,y,a11,a12,a21,a22,tx,ty,rm
 }
 
 void writePatches(std::ostream& os, const PatchTracks& t) {
-  os << "# rsfm-patches 1\n";
-  os << fmt::format("# image_size {} {}\n", t.image.width, t.image.height);
-  os << fmt::format("# principal_point {} {}\n", t.image.cx, t.image.cy);
-  os << fmt::format("# frames {} {}\n", t.first_frame, t.first_frame + t.numFrames() - 1);
+  detail::writeCsvHeader(os, "rsfm-patches", t.image, t.first_frame, t.numFrames(), t.source);
   os << fmt::format("# radius {}\n", t.radius);
-  std::string src = t.source;
-  for (char& c : src)
-    if (c == '\n' || c == '\r') c = ' ';
-  if (!src.empty()) os << "# source " << src << "\n";
   os << kColumns << "\n";
   std::string buf;
   for (int k = 0; k < t.numFrames(); ++k)
@@ -51,15 +44,13 @@ std::string patchesToString(const PatchTracks& t) {
 }
 
 PatchTracks readPatches(const std::filesystem::path& file) {
-  std::error_code ec;
-  if (!std::filesystem::exists(file, ec)) throw inputError(file, 0, "no such file");
-  if (std::filesystem::is_directory(file, ec)) throw inputError(file, 0, "is a directory, not a patches file");
-  std::ifstream in(file);
-  if (!in) throw inputError(file, 0, "cannot be opened");
+  std::ifstream in = detail::openCsv(file, "patches");
   PatchTracks t;
   std::string line;
   int ln = 0;
-  bool version = false, size = false, pp = false, frames = false, radius = false, columns = false;
+  detail::CsvHeader head;
+  head.magic = "rsfm-patches";
+  bool radius = false, columns = false;
   long long last_frame = 0, cur_frame = -1, cur_id = -1;
   size_t rows = 0;
   std::map<long long, Eigen::Vector2d> first_centre;
@@ -72,44 +63,20 @@ PatchTracks readPatches(const std::filesystem::path& file) {
         std::istringstream ss(line.substr(1));
         std::string key;
         ss >> key;
-        if (key.empty()) continue;
-        if (!version) {
-          int v = 0;
-          if (key != "rsfm-patches" || !(ss >> v))
-            throw inputError(file, ln, "not an rsfm patches file (first line must be '# rsfm-patches 1')");
-          if (v != 1) throw inputError(file, ln, fmt::format("unsupported patches format version {} (this rsfm reads 1)", v));
-          version = true;
-        } else if (key == "image_size") {
-          if (!(ss >> t.image.width >> t.image.height) || t.image.width <= 0 || t.image.height <= 0)
-            throw inputError(file, ln, "image_size needs two positive integers (width height)");
-          size = true;
-        } else if (key == "principal_point") {
-          if (!(ss >> t.image.cx >> t.image.cy) || !std::isfinite(t.image.cx) || !std::isfinite(t.image.cy))
-            throw inputError(file, ln, "principal_point needs two finite numbers (cx cy)");
-          pp = true;
-        } else if (key == "frames") {
-          long long a = 0, b = 0;
-          if (!(ss >> a >> b) || a < 0 || b < a) throw inputError(file, ln, "frames needs first <= last, both >= 0");
-          t.first_frame = static_cast<int>(a);
-          last_frame = b;
-          t.frames.resize(static_cast<size_t>(b - a + 1));
-          frames = true;
-        } else if (key == "radius") {
+        if (key.empty() || head.parse(key, ss, file, ln)) continue;
+        if (key == "radius") {
           if (!(ss >> t.radius) || t.radius < 1) throw inputError(file, ln, "radius needs a positive integer");
           radius = true;
-        } else if (key == "source") {
-          std::getline(ss >> std::ws, t.source);
         }
         continue;
       }
-      if (!version) throw inputError(file, ln, "not an rsfm patches file (first line must be '# rsfm-patches 1')");
-      if (!size) throw inputError(file, ln, "missing '# image_size W H' header line");
-      if (!frames) throw inputError(file, ln, "missing '# frames FIRST LAST' header line");
+      head.finish(file, ln);
       if (!radius) throw inputError(file, ln, "missing '# radius R' header line");
-      if (!pp) {
-        t.image.cx = (t.image.width - 1) / 2.0;
-        t.image.cy = (t.image.height - 1) / 2.0;
-      }
+      t.image = head.image;
+      t.first_frame = head.first_frame;
+      t.source = head.source;
+      last_frame = head.last_frame;
+      t.frames.resize(static_cast<size_t>(last_frame - t.first_frame + 1));
       if (line != kColumns) throw inputError(file, ln, fmt::format("expected the column header '{}', got '{}'", kColumns, line));
       columns = true;
       continue;
@@ -153,7 +120,7 @@ PatchTracks readPatches(const std::filesystem::path& file) {
     ++rows;
   }
   if (in.bad()) throw inputError(file, ln, "read error");
-  if (!version) throw inputError(file, 0, "empty file (not an rsfm patches file)");
+  if (!head.version) throw inputError(file, 0, "empty file (not an rsfm patches file)");
   if (!columns) throw inputError(file, ln, fmt::format("no column header '{}'", kColumns));
   if (rows == 0) throw inputError(file, ln, "no patch rows");
   return t;

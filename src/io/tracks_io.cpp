@@ -17,14 +17,7 @@ using detail::parseInt;
 using detail::split;
 
 void writeTracks(std::ostream& os, const Tracks& t) {
-  os << "# rsfm-tracks 1\n";
-  os << fmt::format("# image_size {} {}\n", t.image.width, t.image.height);
-  os << fmt::format("# principal_point {} {}\n", t.image.cx, t.image.cy);
-  os << fmt::format("# frames {} {}\n", t.first_frame, t.first_frame + t.numFrames() - 1);
-  std::string src = t.source;
-  for (char& c : src)
-    if (c == '\n' || c == '\r') c = ' ';
-  if (!src.empty()) os << "# source " << src << "\n";
+  detail::writeCsvHeader(os, "rsfm-tracks", t.image, t.first_frame, t.numFrames(), t.source);
   os << "frame,track,x,y\n";
   std::string buf;
   for (int k = 0; k < t.numFrames(); ++k)
@@ -43,15 +36,13 @@ std::string tracksToString(const Tracks& t) {
 
 
 Tracks readTracks(const std::filesystem::path& file) {
-  std::error_code ec;
-  if (!std::filesystem::exists(file, ec)) throw inputError(file, 0, "no such file");
-  if (std::filesystem::is_directory(file, ec)) throw inputError(file, 0, "is a directory, not a tracks file");
-  std::ifstream in(file);
-  if (!in) throw inputError(file, 0, "cannot be opened");
+  std::ifstream in = detail::openCsv(file, "tracks");
   Tracks t;
   std::string line;
   int ln = 0;
-  bool version = false, size = false, pp = false, frames = false, columns = false;
+  detail::CsvHeader head;
+  head.magic = "rsfm-tracks";
+  bool columns = false;
   long long last_frame = 0;
   long long cur_frame = -1, cur_id = -1;
   size_t rows = 0;
@@ -64,42 +55,15 @@ Tracks readTracks(const std::filesystem::path& file) {
         std::istringstream ss(line.substr(1));
         std::string key;
         ss >> key;
-        if (key.empty()) continue;
-        if (!version) {
-          int v = 0;
-          if (key != "rsfm-tracks" || !(ss >> v))
-            throw inputError(file, ln, "not an rsfm tracks file (first line must be '# rsfm-tracks 1')");
-          if (v != 1) throw inputError(file, ln, fmt::format("unsupported tracks format version {} (this rsfm reads 1)", v));
-          version = true;
-          continue;
-        }
-        if (key == "image_size") {
-          if (!(ss >> t.image.width >> t.image.height) || t.image.width <= 0 || t.image.height <= 0)
-            throw inputError(file, ln, "image_size needs two positive integers (width height)");
-          size = true;
-        } else if (key == "principal_point") {
-          if (!(ss >> t.image.cx >> t.image.cy) || !std::isfinite(t.image.cx) || !std::isfinite(t.image.cy))
-            throw inputError(file, ln, "principal_point needs two finite numbers (cx cy)");
-          pp = true;
-        } else if (key == "frames") {
-          long long a = 0, b = 0;
-          if (!(ss >> a >> b) || a < 0 || b < a) throw inputError(file, ln, "frames needs first <= last, both >= 0");
-          t.first_frame = static_cast<int>(a);
-          last_frame = b;
-          t.frames.resize(static_cast<size_t>(b - a + 1));
-          frames = true;
-        } else if (key == "source") {
-          std::getline(ss >> std::ws, t.source);
-        }  // other '#' lines are comments
+        if (!key.empty()) head.parse(key, ss, file, ln);  // other '#' lines are comments
         continue;
       }
-      if (!version) throw inputError(file, ln, "not an rsfm tracks file (first line must be '# rsfm-tracks 1')");
-      if (!size) throw inputError(file, ln, "missing '# image_size W H' header line");
-      if (!frames) throw inputError(file, ln, "missing '# frames FIRST LAST' header line");
-      if (!pp) {
-        t.image.cx = (t.image.width - 1) / 2.0;
-        t.image.cy = (t.image.height - 1) / 2.0;
-      }
+      head.finish(file, ln);
+      t.image = head.image;
+      t.first_frame = head.first_frame;
+      t.source = head.source;
+      last_frame = head.last_frame;
+      t.frames.resize(static_cast<size_t>(last_frame - t.first_frame + 1));
       if (line != "frame,track,x,y")
         throw inputError(file, ln, "expected the column header 'frame,track,x,y', got '" + line + "'");
       columns = true;
@@ -127,7 +91,7 @@ Tracks readTracks(const std::filesystem::path& file) {
     ++rows;
   }
   if (in.bad()) throw inputError(file, ln, "read error");
-  if (!version) throw inputError(file, 0, "empty file (not an rsfm tracks file)");
+  if (!head.version) throw inputError(file, 0, "empty file (not an rsfm tracks file)");
   if (!columns) throw inputError(file, ln, "no column header 'frame,track,x,y'");
   if (rows == 0) throw inputError(file, ln, "no track rows");
   return t;

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
 #include "rsfm/io/input_error.hpp"
@@ -123,6 +124,19 @@ bool FrameSource::read(cv::Mat* img) {
                                  size_.width, size_.height));
   }
   return true;
+}
+
+cv::Mat toGray8(const cv::Mat& frame) {
+  cv::Mat gray;
+  if (frame.channels() == 3) cv::cvtColor(frame, gray, cv::COLOR_BGR2GRAY);
+  else if (frame.channels() == 4) cv::cvtColor(frame, gray, cv::COLOR_BGRA2GRAY);
+  else gray = frame;
+  if (gray.depth() != CV_8U) {
+    cv::Mat g8;
+    gray.convertTo(g8, CV_8U, gray.depth() == CV_16U ? 1.0 / 256.0 : 1.0);
+    gray = g8;
+  }
+  return gray;
 }
 
 void forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,

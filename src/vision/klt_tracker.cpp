@@ -96,15 +96,7 @@ void KltTracker::anchor(std::vector<TrackPoint>* tracks) {
 }
 
 void KltTracker::process(const cv::Mat& frame) {
-  cv::Mat gray;
-  if (frame.channels() == 3) cv::cvtColor(frame, gray, cv::COLOR_BGR2GRAY);
-  else if (frame.channels() == 4) cv::cvtColor(frame, gray, cv::COLOR_BGRA2GRAY);
-  else gray = frame;
-  if (gray.depth() != CV_8U) {
-    cv::Mat g8;
-    gray.convertTo(g8, CV_8U, gray.depth() == CV_16U ? 1.0 / 256.0 : 1.0);
-    gray = g8;
-  }
+  const cv::Mat gray = toGray8(frame);
   const cv::Size win(o_.window_px, o_.window_px);
   if (o_.anchor) gray.convertTo(cur_float_, CV_32F);
   std::vector<cv::Mat> pyr;

@@ -7,23 +7,6 @@
 
 namespace rsfm::vision {
 
-namespace {
-
-cv::Mat toGray8(const cv::Mat& frame) {
-  cv::Mat gray;
-  if (frame.channels() == 3) cv::cvtColor(frame, gray, cv::COLOR_BGR2GRAY);
-  else if (frame.channels() == 4) cv::cvtColor(frame, gray, cv::COLOR_BGRA2GRAY);
-  else gray = frame;
-  if (gray.depth() != CV_8U) {
-    cv::Mat g8;
-    gray.convertTo(g8, CV_8U, gray.depth() == CV_16U ? 1.0 / 256.0 : 1.0);
-    gray = g8;
-  }
-  return gray;
-}
-
-}  // namespace
-
 void PatchTracker::detect(const cv::Mat& gray) {
   const int want = o_.max_patches - static_cast<int>(live_.size());
   if (want <= 0) return;

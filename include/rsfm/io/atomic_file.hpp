@@ -30,6 +30,9 @@ class AtomicFileSet {
   bool done_ = false;
 };
 
+/// Writes each (path, text) all-or-nothing (an AtomicFileSet committed at the end).
+void writeAllOrNothing(const std::vector<std::pair<std::filesystem::path, std::string>>& files);
+
 /// Creates `dir` if needed and checks that a file can be created in it. Returns an empty string
 /// on success, else a one-line reason.
 std::string ensureWritableDirectory(const std::filesystem::path& dir);

@@ -27,6 +27,11 @@ struct EstimateReport {
 /// centre, Hamilton rotation camera -> reference).
 void poseOf(const TrackFrame& f, Eigen::Vector3d* position, Eigen::Quaterniond* q);
 
+/// The summary keys every estimator writes first: format, version, model, frames, first/last
+/// frame, image, principal point, scale_px, focal_px (= s / beta), focal_sd_px, beta.
+nlohmann::json summaryHead(const std::string& model, int frames, int first_frame, int last_frame, const ImageInfo& image,
+                           double scale_px, double beta, double var_beta);
+
 /// The summary as JSON (also what summary.json holds).
 nlohmann::json estimateSummary(const EstimateReport& r);
 

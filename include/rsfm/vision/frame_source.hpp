@@ -47,6 +47,9 @@ class FrameSource {
   cv::Size size_;
 };
 
+/// 8-bit single-channel version of a frame (BGR, BGRA, gray; 16-bit scaled by 1/256).
+cv::Mat toGray8(const cv::Mat& frame);
+
 /// Calls `fn` on every frame of `input` in `range`, in order; `progress(done, total)` after each
 /// (total = -1 when unknown). Throws io::InputError on bad input, a range that starts after the end
 /// or ends after it, or fewer than 2 frames.
