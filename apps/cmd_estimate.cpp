@@ -53,6 +53,10 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--centres", e->centres, "patches: centres measured | predicted | fused (docs/patches.md)")
       ->capture_default_str();
   a->add_option("--measurement", e->measurement, "patches: affine measurement exact | instantaneous")->capture_default_str();
+  a->add_option("--fused-maps", e->patch.fused_maps, "patches: estimate each patch's cumulative map beside the filter (true/false)")
+      ->capture_default_str();
+  a->add_option("--sigma-map", e->patch.sigma_map, "patches: noise sd of the tracker's cumulative map entries (--fused-maps)")
+      ->capture_default_str();
   a->add_option("--anneal-frames", e->patch.anneal_frames, "patches: frames over which R is annealed (0: none)")
       ->capture_default_str();
   a->add_option("--patch-q-omega", e->patch.q_omega, "patches: process variance of the inter-frame rotation")

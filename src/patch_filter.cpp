@@ -77,6 +77,8 @@ PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
   }
   std::vector<Eigen::Vector2d> centres(model_.numPatches());
   std::vector<Eigen::Matrix2d> covs = centre_cov_;
+  fs.posterior_z.assign(model_.numPatches(), Vector6d::Constant(std::nan("")));
+  fs.posterior_cov.assign(model_.numPatches(), Eigen::Matrix<double, 6, 6>::Zero());
   const double s2 = opt_.centre_sd * opt_.centre_sd;
   for (int k = 0; k < model_.numPatches(); ++k) {
     Vector6d zp;
@@ -85,6 +87,11 @@ PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
     const MeasureStatus st =
         PatchModel::measure(opt_.measurement, mp, ekf_.x().segment<3>(is), model_.centre(k), &zp, &J);
     const bool predicted = st == MeasureStatus::Ok;
+    std::vector<int> cols{0, 1, 2, 3, 4, 5, 6, is, is + 1, is + 2};
+    if (predicted) {
+      fs.posterior_z[k] = zp;
+      fs.posterior_cov[k] = J * ekf_.P()(cols, cols) * J.transpose();
+    }
     if (opt_.centres == PatchCentres::Measured || !predicted) {
       centres[k] = measured[k] ? measured_centre[k] : predicted ? Eigen::Vector2d(zp.head<2>()) : model_.centre(k);
       covs[k] = Eigen::Matrix2d::Identity() * s2;
@@ -97,9 +104,7 @@ PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
     // Fused: prediction with its covariance, then the measured centre.
     Eigen::Matrix2d A;
     A << zp[2], zp[3], zp[4], zp[5];
-    std::vector<int> cols{0, 1, 2, 3, 4, 5, 6, is, is + 1, is + 2};
-    const Eigen::Matrix<double, 2, 10> Jh = J.topRows<2>();
-    const Eigen::Matrix2d Cp = A * centre_cov_[k] * A.transpose() + Jh * ekf_.P()(cols, cols) * Jh.transpose();
+    const Eigen::Matrix2d Cp = A * centre_cov_[k] * A.transpose() + fs.posterior_cov[k].topLeftCorner<2, 2>();
     if (!measured[k]) {  // gated or not observed: restart from the measurement if there is one
       bool seen = false;
       for (size_t b = 0; b < used.size(); ++b)
@@ -178,6 +183,7 @@ void PatchFilter::linearize(const Eigen::VectorXd& x, const std::vector<AffineOb
     batch->H.block(r0, 0, 6, 7) = jacobians[b].leftCols<7>();
     batch->H.block(r0, PatchModel::structureIndex(k), 6, 3) = jacobians[b].rightCols<3>();
     batch->R.block<6, 6>(r0, 0) = sd.array().square().matrix().asDiagonal();
+    batch->R.block<4, 4>(r0 + 2, 2) += inflate * obs[(*used)[b]].map_cov;
     // The previous centre is uncertain (covariance C): its error moves the predicted centre by
     // A (c - c_true), A = dh/dc; dA/dc is second order and left out.
     if (opt_.centres != PatchCentres::Predicted) {

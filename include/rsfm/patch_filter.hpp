@@ -91,6 +91,10 @@ struct PatchFrameStats {
   bool beta_projected = false;
   int iterations = 1;  ///< measurement linearizations used
   std::vector<int> used;  ///< observation index of each measurement block (update.gated_mask is aligned)
+  /// Per patch slot (before any removal): the measurement predicted from the posterior state about
+  /// the previous centre, and its covariance J P+ J^T (NaN when the prediction failed).
+  std::vector<Vector6d> posterior_z;
+  std::vector<Eigen::Matrix<double, 6, 6>> posterior_cov;
   bool ok() const { return health == kHealthy && update.applied && transition == MeasureStatus::Ok; }
 };
 

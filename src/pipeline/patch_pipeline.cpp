@@ -30,6 +30,19 @@ double normalSdDeg(const Eigen::Vector3d& s, double beta, const Eigen::Matrix4d&
   return std::sqrt(std::max(0.0, c.trace())) * kRadToDeg;
 }
 
+/// Kronecker product of 2x2 matrices (row-major vectorization: vec(X Y Z) = (X (x) Z^T) vec(Y)).
+Eigen::Matrix4d kron(const Eigen::Matrix2d& a, const Eigen::Matrix2d& b) {
+  Eigen::Matrix4d k;
+  for (int i = 0; i < 2; ++i)
+    for (int j = 0; j < 2; ++j) k.block<2, 2>(2 * i, 2 * j) = a(i, j) * b;
+  return k;
+}
+
+struct FusedMap {
+  Eigen::Matrix2d A = Eigen::Matrix2d::Identity();  // first appearance -> current frame
+  Eigen::Matrix4d C = Eigen::Matrix4d::Zero();      // covariance of (A11, A12, A21, A22)
+};
+
 double median(std::vector<double> v) {
   if (v.empty()) return NAN;
   std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
@@ -80,6 +93,17 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
   for (const auto& p : tracks.frames[0])
     if (usable(p.id)) ids.push_back(p.id), c0.push_back(norm(p.px));
   const int K = static_cast<int>(ids.size());
+  std::map<int, FusedMap> maps;  // per patch id: fused cumulative map (PatchPipelineOptions::fused_maps)
+  auto startMap = [&](const PatchObservation& p) {
+    FusedMap m;
+    m.A = p.A;
+    // In its first frame a patch's map is the identity by definition.
+    const bool first = (p.px - p.px0).norm() < 1e-9 && (p.A - Eigen::Matrix2d::Identity()).norm() < 1e-12;
+    m.C = Eigen::Matrix4d::Identity() * (first ? 0.0 : o.sigma_map * o.sigma_map);
+    maps[p.id] = m;
+  };
+  for (const auto& p : tracks.frames[0])
+    if (usable(p.id)) startMap(p);
   if (K < PatchModel::kMinPatches)
     throw std::invalid_argument("only " + std::to_string(K) + " patches (seen in at least " +
                                 std::to_string(o.min_patch_frames) + " frames) in the first frame; the patch filter needs " +
@@ -170,13 +194,68 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
       const PatchObservation* a = tracks.find(k - 1, ids[p]);
       const PatchObservation* b = tracks.find(k, ids[p]);
       if (!a || !b) continue;
-      const Eigen::Matrix2d Ai = b->A * a->A.inverse();
       AffineObservation ob;
       ob.id = p;
+      Eigen::Matrix2d Ai;
+      if (o.fused_maps) {
+        // The previous map is the fused one: z_A = A_k Ahat^-1, its uncertainty J C J^T with
+        // J = -(z_A (x) Ahat^-T) (row-major vectorization).
+        const FusedMap& m = maps.at(ids[p]);
+        const Eigen::Matrix2d inv = m.A.inverse();
+        Ai = b->A * inv;
+        const Eigen::Matrix4d J = -kron(Ai, inv.transpose());
+        ob.map_cov = J * m.C * J.transpose();
+      } else {
+        Ai = b->A * a->A.inverse();
+      }
       ob.z << norm(b->px), Ai(0, 0), Ai(0, 1), Ai(1, 0), Ai(1, 1);
       obs.push_back(ob);
     }
     const PatchFrameStats fs = f.step(obs);
+    if (o.fused_maps && fs.health == kHealthy && fs.transition == MeasureStatus::Ok) {
+      // Each patch's cumulative map: the posterior's inter-frame map M applied to the previous
+      // fused map (covariance from both), fused with the tracker's map (sigma_map^2 I); a gated
+      // patch restarts from the tracker's map.
+      std::vector<char> accepted(f.numPatches(), 0), offered(f.numPatches(), 0);
+      for (size_t bi = 0; bi < fs.used.size(); ++bi) {
+        const int p = obs[fs.used[bi]].id;
+        offered[p] = 1;
+        if (bi >= fs.update.gated_mask.size() || !fs.update.gated_mask[bi]) accepted[p] = 1;
+      }
+      const double s2 = o.sigma_map * o.sigma_map;
+      for (int p = 0; p < static_cast<int>(fs.posterior_z.size()); ++p) {
+        FusedMap& m = maps.at(ids[p]);
+        const PatchObservation* b = tracks.find(k, ids[p]);
+        if (b && offered[p] && !accepted[p]) {
+          m.A = b->A;
+          m.C = Eigen::Matrix4d::Identity() * s2;
+          continue;
+        }
+        const Vector6d& zp = fs.posterior_z[p];
+        if (!zp.allFinite()) {
+          if (b) m.A = b->A, m.C = Eigen::Matrix4d::Identity() * s2;
+          continue;
+        }
+        Eigen::Matrix2d M;
+        M << zp[2], zp[3], zp[4], zp[5];
+        const Eigen::Matrix4d JM = kron(Eigen::Matrix2d::Identity(), m.A.transpose());
+        const Eigen::Matrix4d JA = kron(M, Eigen::Matrix2d::Identity());
+        const Eigen::Matrix4d Cp = JM * fs.posterior_cov[p].bottomRightCorner<4, 4>() * JM.transpose() + JA * m.C * JA.transpose();
+        const Eigen::Matrix2d Ap = M * m.A;
+        if (!b) {
+          m.A = Ap, m.C = Cp;
+          continue;
+        }
+        const Eigen::Matrix4d G = Cp * (Cp + Eigen::Matrix4d::Identity() * s2).inverse();
+        Eigen::Vector4d v;
+        v << Ap(0, 0), Ap(0, 1), Ap(1, 0), Ap(1, 1);
+        const Eigen::Vector4d meas(b->A(0, 0), b->A(0, 1), b->A(1, 0), b->A(1, 1));
+        v += G * (meas - v);
+        m.A << v[0], v[1], v[2], v[3];
+        const Eigen::Matrix4d C = (Eigen::Matrix4d::Identity() - G) * Cp;
+        m.C = 0.5 * (C + C.transpose());
+      }
+    }
     if (fs.health != kHealthy || fs.transition != MeasureStatus::Ok) {
       res.stopped = "frame " + std::to_string(tracks.first_frame + k) + ": " +
                     (fs.transition != MeasureStatus::Ok ? std::string(toString(fs.transition)) : describeHealth(fs.health));
@@ -198,6 +277,7 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
       Pn(2, 2) = std::pow(o.depth_rel_sd0 * gmed, 2);
       f.addPatch(norm(p.px), Eigen::Vector3d(0.0, 0.0, gmed), Pn);
       ids.push_back(p.id);
+      startMap(p);
       ++res.entered;
       ++res.joined;
     }

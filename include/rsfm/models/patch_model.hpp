@@ -54,6 +54,10 @@ struct AffineObservation {
   /// (h_u, h_v, A_11, A_12, A_21, A_22): the patch centre in the current frame (normalized units)
   /// and the local affine map from the previous frame to the current one (unitless).
   Vector6d z = Vector6d::Zero();
+  /// Extra covariance of the map entries (A_11, A_12, A_21, A_22), added to the filter's R: e.g.
+  /// the uncertainty of the previous cumulative map when A is derived from fused maps
+  /// (pipeline/patch_pipeline.hpp). Zero by default.
+  Eigen::Matrix4d map_cov = Eigen::Matrix4d::Zero();
 };
 
 class PatchModel {

@@ -47,6 +47,14 @@ struct PatchPipelineOptions {
   int anneal_frames = 30;
   double anneal_factor = 100.0;
   PatchCentres centres = PatchCentres::Fused;
+  /// The tracker's maps are from each patch's first appearance, so inter-frame maps
+  /// A_k A_{k-1}^-1 have noise correlated from frame to frame (each A appears in two of them),
+  /// and used as independent they waste most of the deformation's information. With fused_maps
+  /// each patch's cumulative map is estimated beside the filter (its prediction through the
+  /// posterior's inter-frame map, fused with the tracker's map of noise sd sigma_map), and the
+  /// measurement is A_k Ahat_{k-1}^-1 with Ahat's uncertainty added to R.
+  bool fused_maps = false;
+  double sigma_map = 0.003;
   AffineMeasurement measurement = AffineMeasurement::Exact;
   int min_patch_frames = 3;  ///< patches seen in fewer frames are left out
   double gate_probability = 0.999;
