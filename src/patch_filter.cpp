@@ -210,17 +210,19 @@ void PatchFilter::iterate(int iterations, const std::vector<AffineObservation>& 
   Eigen::MatrixXd Pf = P_prior(f, f);
   Pf.diagonal().array() += 1e-12 * std::max(1e-300, Pf.diagonal().maxCoeff());
   const Eigen::LDLT<Eigen::MatrixXd> prior(Pf);
-  const Eigen::Array<double, 6, 1> w = opt_.measurement_sd.array().square().inverse();
+  // The cost uses the same R as the update (annealing, centre and map uncertainties included).
   auto cost = [&](const Eigen::VectorXd& x, double* out) {
     if (!x.allFinite() || !incrementalRotationValid(x.segment<3>(3))) return false;
+    MeasurementBatch b;
+    std::vector<int> u;
+    PatchFrameStats tmp;
+    linearize(x, obs, &b, &u, &tmp);
+    if (u != used) return false;
     double c = 0.0;
-    for (size_t i = 0; i < obs.size(); ++i) {
-      if (!accepted[i]) continue;
-      Vector6d zp;
-      if (PatchModel::measure(opt_.measurement, x.head<7>(), x.segment<3>(PatchModel::structureIndex(obs[i].id)),
-                              model_.centre(obs[i].id), &zp, nullptr) != MeasureStatus::Ok)
-        return false;
-      c += ((obs[i].z - zp).array().square() * w).sum();
+    for (size_t k = 0; k < u.size(); ++k) {
+      if (!accepted[u[k]]) continue;
+      const Vector6d r = b.residual.segment<6>(6 * k);
+      c += r.dot(b.R.block<6, 6>(6 * k, 0).ldlt().solve(r));
     }
     const Eigen::VectorXd dx = (x - x_prior)(f);
     c += dx.dot(prior.solve(dx));
