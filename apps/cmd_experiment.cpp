@@ -178,6 +178,9 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   pat->add_option("--sphere-frames", pa.sphere.frames, "sphere scene: frames after the first")->capture_default_str();
   pat->add_option("--plane-frames", pa.plane.table1.frames, "plane scene: frames after the first")->capture_default_str();
   pat->add_option("--sphere-patches", pa.sphere.patches, "sphere scene: clusters")->capture_default_str();
+  pat->add_option("--sphere-off-axis", pa.sphere.max_off_axis_deg,
+                  "sphere scene: clusters centred within this angle (deg) of the point facing the camera")
+      ->capture_default_str();
   pat->add_option("--plane-patches", pa.plane.patches, "plane scene: clusters")->capture_default_str();
   pat->add_option("--beta0", pa.beta0, "initial beta")->capture_default_str();
   pat->add_option("--beta-var", pa.beta_var0, "initial beta variance")->capture_default_str();

@@ -211,7 +211,7 @@ std::string validatePatchesOptions(const PatchesOptions& o) {
   if (o.sphere_noise.empty() && o.plane_noise.empty()) return "at least one noise level is required";
   for (const auto* v : {&o.sphere_noise, &o.plane_noise})
     for (double r : *v)
-      if (!(r >= 0.0) || !std::isfinite(r)) return "noise levels must be finite and non-negative";
+      if (!(r > 0.0) || !std::isfinite(r)) return "noise levels must be finite and positive (R is built from them)";
   if (o.sphere.frames < 1 || o.plane.table1.frames < 1) return "--frames must be at least 1";
   if (o.sphere.patches < PatchModel::kMinPatches || o.plane.patches < PointModel::kMinPoints)
     return "too few patches (the sphere needs 3, the plane scene 7 for the point filter)";

@@ -148,16 +148,20 @@ PatchScene makeSphereScene(const SphereSceneOptions& o, std::mt19937_64& rng) {
   }
   std::vector<Eigen::Matrix3d> R(o.frames + 1);
   std::vector<Eigen::Vector3d> t(o.frames + 1);
+  auto turn = [&](int k) {
+    const double ph = 2.0 * 3.14159265358979323846 * k / o.frames;
+    return (Eigen::AngleAxisd(o.angle_x_deg * kDeg * std::sin(ph), Eigen::Vector3d::UnitX()) *
+            Eigen::AngleAxisd(o.angle_y_deg * kDeg * std::sin(ph + 1.0), Eigen::Vector3d::UnitY()))
+        .toRotationMatrix();
+  };
+  const Eigen::Matrix3d Q0 = turn(0);
   for (int k = 0; k <= o.frames; ++k) {
     const double ph = 2.0 * 3.14159265358979323846 * k / o.frames;
     const Eigen::Vector3d Ck = o.centre + Eigen::Vector3d(o.amplitude.x() * std::sin(ph), o.amplitude.y() * std::sin(ph + 1.0),
                                                           o.amplitude.z() * (1.0 - std::cos(ph)));
-    const Eigen::Matrix3d Q = (Eigen::AngleAxisd(o.angle_x_deg * kDeg * std::sin(ph), Eigen::Vector3d::UnitX()) *
-                               Eigen::AngleAxisd(o.angle_y_deg * kDeg * std::sin(ph + 1.0), Eigen::Vector3d::UnitY()))
-                                  .toRotationMatrix();
-    // X_k = C_k + Q (X_0 - C_0)
-    R[k] = Q;
-    t[k] = Ck - Q * o.centre;
+    // X_k = C_k + Q_k Q_0^T (X_0 - C_0): the sphere turned about its centre relative to frame 0.
+    R[k] = turn(k) * Q0.transpose();
+    t[k] = Ck - R[k] * o.centre;
   }
   PatchScene s = build(clusters, R, t, o.beta, 0.5, "sphere scene");
   s.scale_px = 256.0 / 0.5;  // a 512-pixel image over the half-width 0.5

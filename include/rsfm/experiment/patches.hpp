@@ -33,10 +33,10 @@ struct PatchesOptions {
   /// Patch filter: initial variance of each inter-frame motion component, and its per-frame
   /// process variances (translation components, rotation components).
   double motion_var0 = 1e-4;
-  double q_translation = 3e-7, q_omega = 3e-7;
+  double q_translation = 1e-6, q_omega = 1e-6;
   /// Patch filter: R annealing over the first frames (PatchFilterOptions::anneal_frames/_factor).
   int anneal_frames = 50;
-  double anneal_factor = 300.0;
+  double anneal_factor = 100.0;
   PatchCentres centres = PatchCentres::Fused;  ///< PatchFilterOptions::centres (centre_sd = the centres' noise)
   int iterations = 1;            ///< patch filter update iterations (1 = EKF)
   double q_structure = 0.0;      ///< patch filter: per-frame variance of each structure parameter
