@@ -156,18 +156,22 @@ void writePatchOverlay(const std::string& input, FrameRange range, const PatchTr
       const double Z = e.depth, w0 = 1.0 + f.beta * Z;
       if (!(w0 > 0)) continue;
       const Eigen::Vector3d X(uv.x() * w0, uv.y() * w0, Z);
-      const Eigen::Vector3d Y = X - 0.2 * std::abs(Z + 1.0 / f.beta) * e.normal;
+      const Eigen::Vector3d Y = X - 0.05 * std::abs(Z + 1.0 / f.beta) * e.normal;
       const double w1 = 1.0 + f.beta * Y.z();
       if (!(w1 > 1e-6)) continue;
-      const Eigen::Vector2d tip = Y.head<2>() / w1 * s + cpx;
-      if (!tip.allFinite() || tip.cwiseAbs().maxCoeff() > 1e5) continue;
+      Eigen::Vector2d tip = Y.head<2>() / w1 * s + cpx;
+      if (!tip.allFinite()) continue;
+      // Keep the arrow readable: at most 2.5 patch radii long in the image (its direction is
+      // what matters).
+      const double len = (tip - e.px).norm(), cap = 2.5 * std::max(5, tracks.radius);
+      if (len > cap) tip = e.px + (tip - e.px) * (cap / len);
       const cv::Point2f a(static_cast<float>(e.px.x()), static_cast<float>(e.px.y()));
       cv::arrowedLine(bgr, a, cv::Point2f(static_cast<float>(tip.x()), static_cast<float>(tip.y())), colour, 2, cv::LINE_AA, 0,
                       0.25);
       cv::circle(bgr, a, 2, colour, -1, cv::LINE_AA);
     }
-    const std::string text = fmt::format("frame {}  f = {:.0f} px  {} patches, {} within 5 deg", f.frame, s / f.beta,
-                                         f.patches.size(), agree.within_5deg);
+    const std::string text = fmt::format("frame {}  f {:.0f} px  {}/{} within 5 deg", f.frame, s / f.beta,
+                                         agree.within_5deg, f.patches.size());
     cv::putText(bgr, text, {10, 22}, cv::FONT_HERSHEY_SIMPLEX, 0.5, {255, 255, 255}, 2, cv::LINE_AA);
     cv::putText(bgr, text, {10, 22}, cv::FONT_HERSHEY_SIMPLEX, 0.5, {0, 0, 0}, 1, cv::LINE_AA);
     vw.write(bgr);

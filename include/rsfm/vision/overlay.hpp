@@ -20,9 +20,10 @@ void writeOverlay(const std::string& input, FrameRange range, const Tracks& trac
                   const TrackFilterResult& result, const std::filesystem::path& path);
 
 /// Patch overlay: each live patch drawn as its warped square (the tracker's A) and its estimated
-/// normal as a line from the centre towards the camera (a 3-D segment of 1/5 of the patch's
-/// depth, projected with that frame's focal length), green within 5 degrees of the median normal
-/// of the frame's patches, orange beyond.
+/// normal as an arrow from the centre towards the camera (a 3-D segment of 1/20 of the patch's
+/// distance from the centre of projection, projected with that frame's focal length, at most 2.5
+/// patch radii long in the image), green within 5 degrees of the median normal of the frame's
+/// patches, orange beyond.
 void writePatchOverlay(const std::string& input, FrameRange range, const PatchTracks& tracks, const PatchRunResult& result,
                        const std::filesystem::path& path);
 
