@@ -260,4 +260,56 @@ UpdateStats Ekf::update(const MeasurementBatch& batch, const UpdateOptions& opt)
   return st;
 }
 
+int iteratedUpdate(Ekf* ekf, int iterations, double tol, int halvings, const Eigen::VectorXd& x_prior,
+                   const Eigen::MatrixXd& P_prior, const std::function<bool(const Eigen::VectorXd&, double*)>& measurement_cost,
+                   const std::function<bool(const Eigen::VectorXd&)>& gauss_newton_point) {
+  const std::vector<int> f = ekf->freeIndices();
+  Eigen::MatrixXd Pf = P_prior(f, f);
+  Pf.diagonal().array() += 1e-12 * std::max(1e-300, Pf.diagonal().maxCoeff());
+  const Eigen::LDLT<Eigen::MatrixXd> prior(Pf);
+  auto cost = [&](const Eigen::VectorXd& x, double* out) {
+    double c = 0.0;
+    if (!measurement_cost(x, &c)) return false;
+    const Eigen::VectorXd dx = (x - x_prior)(f);
+    c += dx.dot(prior.solve(dx));
+    *out = c;
+    return std::isfinite(c);
+  };
+  Eigen::VectorXd x_lin = x_prior;
+  double c_lin = 0.0;
+  if (!cost(x_lin, &c_lin)) return 0;
+  Eigen::VectorXd x_gn = ekf->x();
+  Eigen::MatrixXd P_gn = ekf->P();
+  for (int it = 0; it < iterations; ++it) {
+    const Eigen::VectorXd d = x_gn - x_lin;
+    bool ok = false;
+    Eigen::VectorXd x_acc;
+    double c_acc = 0.0, alpha = 1.0;
+    for (int ls = 0; ls < halvings && !ok; ++ls, alpha *= 0.5) {
+      const Eigen::VectorXd xt = x_lin + alpha * d;
+      double c = 0.0;
+      if (cost(xt, &c) && c < c_lin) ok = true, x_acc = xt, c_acc = c;
+    }
+    ekf->mutableP() = P_gn;
+    if (!ok) {  // no step decreases J: stay at the current iterate
+      ekf->mutableX() = x_lin;
+      return it + 1;
+    }
+    ekf->mutableX() = x_acc;
+    const double step = (x_acc - x_lin).cwiseAbs().maxCoeff();
+    x_lin = x_acc;
+    c_lin = c_acc;
+    if (!(step > tol) || it + 1 >= iterations) return it + 1;
+    if (!gauss_newton_point(x_lin)) {
+      ekf->mutableX() = x_lin;
+      ekf->mutableP() = P_gn;
+      return it + 1;
+    }
+    x_gn = ekf->x();
+    P_gn = ekf->P();
+    ekf->mutableX() = x_lin;  // until the line search accepts a point
+  }
+  return iterations;
+}
+
 }  // namespace rsfm

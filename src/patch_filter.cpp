@@ -197,19 +197,12 @@ void PatchFilter::linearize(const Eigen::VectorXd& x, const std::vector<AffineOb
 
 void PatchFilter::iterate(int iterations, const std::vector<AffineObservation>& obs, const std::vector<int>& used,
                           const Eigen::VectorXd& x_prior, const Eigen::MatrixXd& P_prior, PatchFrameStats* fs) {
-  // Iterated EKF with backtracking: Gauss-Newton on the MAP cost
-  //   J(x) = sum_b r_b(x)^T R_b^-1 r_b(x) + (x - x^-)^T P^-^-1 (x - x^-)
-  // over the blocks accepted by the first update. Each Gauss-Newton point is the update of the
-  // prior linearized at the current iterate x_i (residual z - h(x_i) - H_i (x^- - x_i)); the step
-  // towards it is halved (up to 4 times) until J decreases, else the iterate stays. The covariance
-  // is the one of the last linearization.
+  // Iterated EKF with backtracking (rsfm::iteratedUpdate, 5 step sizes): Gauss-Newton on the MAP
+  // cost over the blocks accepted by the first update; each Gauss-Newton point is the update of
+  // the prior linearized at the current iterate x_i (residual z - h(x_i) - H_i (x^- - x_i)).
   std::vector<char> accepted(obs.size(), 0);
   for (size_t b = 0; b < used.size(); ++b)
     if (b >= fs->update.gated_mask.size() || !fs->update.gated_mask[b]) accepted[used[b]] = 1;
-  const std::vector<int> f = ekf_.freeIndices();
-  Eigen::MatrixXd Pf = P_prior(f, f);
-  Pf.diagonal().array() += 1e-12 * std::max(1e-300, Pf.diagonal().maxCoeff());
-  const Eigen::LDLT<Eigen::MatrixXd> prior(Pf);
   // The cost uses the same R as the update (annealing, centre and map uncertainties included).
   auto cost = [&](const Eigen::VectorXd& x, double* out) {
     if (!x.allFinite() || !incrementalRotationValid(x.segment<3>(3))) return false;
@@ -224,42 +217,15 @@ void PatchFilter::iterate(int iterations, const std::vector<AffineObservation>& 
       const Vector6d r = b.residual.segment<6>(6 * k);
       c += r.dot(b.R.block<6, 6>(6 * k, 0).ldlt().solve(r));
     }
-    const Eigen::VectorXd dx = (x - x_prior)(f);
-    c += dx.dot(prior.solve(dx));
     *out = c;
-    return std::isfinite(c);
+    return true;
   };
-  Eigen::VectorXd x_lin = x_prior;
-  double c_lin = 0.0;
-  if (!cost(x_lin, &c_lin)) return;
-  Eigen::VectorXd x_gn = ekf_.x();
-  Eigen::MatrixXd P_gn = ekf_.P();
-  for (int it = 0; it < iterations; ++it) {
-    const Eigen::VectorXd d = x_gn - x_lin;
-    bool ok = false;
-    double alpha = 1.0, c_acc = 0.0;
-    Eigen::VectorXd x_acc;
-    for (int ls = 0; ls < 5 && !ok; ++ls, alpha *= 0.5) {
-      const Eigen::VectorXd xt = x_lin + alpha * d;
-      double c = 0.0;
-      if (cost(xt, &c) && c < c_lin) ok = true, x_acc = xt, c_acc = c;
-    }
-    fs->iterations = it + 1;
-    ekf_.mutableP() = P_gn;
-    if (!ok) {
-      ekf_.mutableX() = x_lin;
-      return;
-    }
-    ekf_.mutableX() = x_acc;
-    const double step = (x_acc - x_lin).cwiseAbs().maxCoeff();
-    x_lin = x_acc;
-    c_lin = c_acc;
-    if (!(step > opt_.iteration_tol) || it + 1 >= iterations) return;
+  auto gaussNewtonPoint = [&](const Eigen::VectorXd& x_lin) {
     MeasurementBatch relin;
     std::vector<int> used_i;
     PatchFrameStats tmp;
     linearize(x_lin, obs, &relin, &used_i, &tmp);
-    if (used_i != used) return;
+    if (used_i != used) return false;
     relin.residual += relin.H * (x_lin - x_prior);
     for (size_t b = 0; b < used.size(); ++b)
       if (!accepted[used[b]]) relin.R.block<6, 6>(6 * b, 0) *= 1e12;  // keep the first update's gate decisions
@@ -267,15 +233,10 @@ void PatchFilter::iterate(int iterations, const std::vector<AffineObservation>& 
     ekf_.mutableP() = P_prior;
     UpdateOptions uo = opt_.update;
     uo.gate_probability = 0.0;
-    const UpdateStats st = ekf_.update(relin, uo);
-    if (!st.applied) {
-      ekf_.mutableX() = x_lin;
-      ekf_.mutableP() = P_gn;
-      return;
-    }
-    x_gn = ekf_.x();
-    P_gn = ekf_.P();
-  }
+    return ekf_.update(relin, uo).applied;
+  };
+  const int n = iteratedUpdate(&ekf_, iterations, opt_.iteration_tol, 5, x_prior, P_prior, cost, gaussNewtonPoint);
+  if (n > 0) fs->iterations = n;
 }
 
 int PatchFilter::addPatch(const Eigen::Vector2d& centre, const Eigen::Vector3d& s0, const Eigen::Matrix3d& P0) {

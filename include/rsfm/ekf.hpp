@@ -23,6 +23,7 @@
 //   gate_probability quantile of chi2(block_dim)); gated blocks do not enter the update.
 #include <Eigen/Core>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -123,5 +124,19 @@ class Ekf {
   Eigen::MatrixXd P_;
   std::vector<bool> fixed_;
 };
+
+/// Iterated EKF update with backtracking, shared by the filters' `iterations` option: Gauss-Newton
+/// on the MAP cost J(x) = measurement_cost(x) + (x - x^-)^T P^-^-1 (x - x^-) (free components).
+/// `ekf` holds the plain update of the prior (x^-, P^-) on entry; that update is the first
+/// Gauss-Newton point. Each step towards the current point is halved (up to `halvings` tries in
+/// all) until J decreases; without a decrease the current iterate stays. After an accepted step
+/// larger than `tol` (infinity norm) the next point comes from `gauss_newton_point(x_i)`, which
+/// must leave in `ekf` the update of the prior linearized at x_i (residual shifted by
+/// H_i (x_i - x^-)) and return false when it could not. On return `ekf` holds the last accepted
+/// iterate with the covariance of the last Gauss-Newton point. Returns the iterations used
+/// (0 when J cannot be evaluated at x^-: the plain update is kept).
+int iteratedUpdate(Ekf* ekf, int iterations, double tol, int halvings, const Eigen::VectorXd& x_prior,
+                   const Eigen::MatrixXd& P_prior, const std::function<bool(const Eigen::VectorXd&, double*)>& measurement_cost,
+                   const std::function<bool(const Eigen::VectorXd&)>& gauss_newton_point);
 
 }  // namespace rsfm

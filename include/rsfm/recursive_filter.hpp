@@ -193,21 +193,17 @@ class RecursiveFilter {
   }
   /// Iterated EKF with backtracking (FilterOptions::iterations > 1). Gauss-Newton on the MAP cost
   ///   J(x) = sum_b r_b(x)^T R_b^-1 r_b(x) + (x - x^-)^T P^-^-1 (x - x^-)
-  /// over the observations accepted by the first update: each GN point comes from an update of
-  /// the prior linearized at the current iterate (residual shifted by H_i (x_i - x^-)); the step
-  /// towards it is halved (up to 3 times) until J decreases, so the first step is a damped EKF
-  /// step. Stops on a step below iteration_tol, or when no step decreases J (the iterate is kept).
-  /// The covariance is the one from the last linearization.
+  /// over the observations accepted by the first update (rsfm::iteratedUpdate, 4 step sizes): each
+  /// GN point comes from an update of the prior linearized at the current iterate (residual
+  /// shifted by H_i (x_i - x^-)); the step towards it is halved (up to 3 times) until J decreases,
+  /// so the first step is a damped EKF step. Stops on a step below iteration_tol, or when no step
+  /// decreases J (the iterate is kept). The covariance is the one from the last linearization.
   void iterate(int iterations, const std::vector<Observation>& obs, const std::vector<Eigen::Matrix2d>* rc,
                const Eigen::VectorXd& x_prior, const Eigen::MatrixXd& P_prior, MeasurementBatch* batch,
                std::vector<int>* used, FrameStats* fs) {
     std::vector<char> accepted(obs.size(), 0);
     for (size_t b = 0; b < used->size(); ++b)
       if (b >= fs->update.gated_mask.size() || !fs->update.gated_mask[b]) accepted[(*used)[b]] = 1;
-    const std::vector<int> f = ekf_.freeIndices();
-    Eigen::MatrixXd Pf = P_prior(f, f);
-    Pf.diagonal().array() += 1e-12 * std::max(1e-300, Pf.diagonal().maxCoeff());
-    const Eigen::LDLT<Eigen::MatrixXd> prior_ldlt(Pf);
     const int invalid0 = fs->invalid;
     auto cost = [&](const Eigen::VectorXd& x, double* out) {
       MeasurementBatch b;
@@ -223,68 +219,34 @@ class RecursiveFilter {
         const Eigen::Matrix2d R = b.R.template block<2, 2>(2 * k, 0);
         c += r.dot(R.ldlt().solve(r));
       }
-      const Eigen::VectorXd dx = (x - x_prior)(f);
-      c += dx.dot(prior_ldlt.solve(dx));
       *out = c;
-      return std::isfinite(c);
+      return true;
     };
-    Eigen::VectorXd x_lin = x_prior;
-    double c_lin = 0.0;
-    if (!cost(x_lin, &c_lin)) return;  // keep the plain EKF update
-    Eigen::VectorXd x_gn = ekf_.x();
-    Eigen::MatrixXd P_gn = ekf_.P();
+    // The statistics, blocks and batch of the latest Gauss-Newton point (reported with its P).
     UpdateStats st_gn = fs->update;
     std::vector<int> used_gn = *used;
-    for (int it = 0; it < iterations; ++it) {
-      const Eigen::VectorXd d = x_gn - x_lin;
-      bool ok = false;
-      Eigen::VectorXd x_acc;
-      double c_acc = 0.0, alpha = 1.0;
-      for (int ls = 0; ls < 4 && !ok; ++ls, alpha *= 0.5) {
-        const Eigen::VectorXd xt = x_lin + alpha * d;
-        double c = 0.0;
-        if (cost(xt, &c) && c < c_lin) ok = true, x_acc = xt, c_acc = c;
-      }
-      if (!ok) {  // no step decreases J: stay at the current iterate
-        ekf_.mutableX() = x_lin;
-        ekf_.mutableP() = P_gn;
-        fs->update = st_gn;
-        *used = used_gn;
-        fs->iterations = it + 1;
-        return;
-      }
-      ekf_.mutableX() = x_acc;
-      ekf_.mutableP() = P_gn;
-      fs->update = st_gn;
-      *used = used_gn;
-      fs->iterations = it + 1;
-      const double step = (x_acc - x_lin).cwiseAbs().maxCoeff();
-      x_lin = x_acc;
-      c_lin = c_acc;
-      if (!(step > opt_.iteration_tol) || it + 1 >= iterations) return;
-      // Next Gauss-Newton point: update of the prior linearized at x_lin.
+    auto gaussNewtonPoint = [&](const Eigen::VectorXd& x_lin) {
       MeasurementBatch relin;
       std::vector<int> used_i;
       int invalid = 0;
       MeasureStatus problem = MeasureStatus::Ok;
       model_.linearize(x_lin, Rg_, obs, opt_.sigma_uv, rc, &relin, &invalid, &problem, &used_i);
-      if (invalid > invalid0) return;
+      if (invalid > invalid0) return false;
       relin.residual += relin.H * (x_lin - x_prior);
       ekf_.mutableX() = x_prior;
       ekf_.mutableP() = P_prior;
       UpdateStats st = ekf_.update(relin, opt_.update);
-      if (!st.applied) {
-        ekf_.mutableX() = x_lin;
-        ekf_.mutableP() = P_gn;
-        return;
-      }
-      x_gn = ekf_.x();
-      P_gn = ekf_.P();
+      if (!st.applied) return false;
       st_gn = std::move(st);
       used_gn = std::move(used_i);
       *batch = std::move(relin);
-      ekf_.mutableX() = x_lin;  // until the line search accepts a point
-    }
+      return true;
+    };
+    const int n = iteratedUpdate(&ekf_, iterations, opt_.iteration_tol, 4, x_prior, P_prior, cost, gaussNewtonPoint);
+    if (n == 0) return;  // keep the plain EKF update
+    fs->update = st_gn;
+    *used = used_gn;
+    fs->iterations = n;
   }
 
   void refineReferences(const std::vector<Observation>& obs, const std::vector<int>& used,
