@@ -19,6 +19,25 @@ bool finite(const Eigen::Matrix<double, 7, 1>& m, const Eigen::Vector3d& s) {
   return m.allFinite() && s.allFinite();
 }
 
+/// Partial derivatives of R(dq(omega)), beta and P = (p1, p2, 1 - beta p4) with respect to
+/// parameter j of (t_X, t_Y, t_Z beta, omega_X, omega_Y, omega_Z, beta, p1, p2, p4); dRw are the
+/// rotation's derivatives dR/domega.
+struct Partials {
+  Eigen::Matrix3d dR = Eigen::Matrix3d::Zero();
+  double dbeta = 0.0;
+  Eigen::Vector3d dP = Eigen::Vector3d::Zero();
+};
+
+Partials partials(int j, const std::array<Eigen::Matrix3d, 3>& dRw, double beta, double p4) {
+  Partials d;
+  if (j >= 3 && j <= 5) d.dR = dRw[j - 3];
+  if (j == kBeta) d.dbeta = 1.0, d.dP.z() = -p4;
+  if (j == kP1) d.dP.x() = 1.0;
+  if (j == kP2) d.dP.y() = 1.0;
+  if (j == kP4) d.dP.z() = -beta;
+  return d;
+}
+
 }  // namespace
 
 MeasureStatus PatchModel::exact(const Eigen::Matrix<double, 7, 1>& m, const Eigen::Vector3d& s,
@@ -47,19 +66,12 @@ MeasureStatus PatchModel::exact(const Eigen::Matrix<double, 7, 1>& m, const Eige
   if (!J) return MeasureStatus::Ok;
   const std::array<Eigen::Matrix3d, 3> dRw = incrementalRotationDerivatives(omega);
   for (int j = 0; j < 10; ++j) {
-    Eigen::Matrix3d dR = Eigen::Matrix3d::Zero();
-    if (j >= 3 && j <= 5) dR = dRw[j - 3];
-    const double db = j == kBeta ? 1.0 : 0.0;
+    const auto [dR, db, dP] = partials(j, dRw, beta, p4);
     Eigen::Vector3d da = -dR * e3;
     if (j == kTx) da.x() += beta;
     if (j == kTy) da.y() += beta;
     if (j == kW) da.z() += 1.0;
     if (j == kBeta) da += Eigen::Vector3d(m[kTx], m[kTy], 0.0);
-    Eigen::Vector3d dP = Eigen::Vector3d::Zero();
-    if (j == kP1) dP.x() = 1.0;
-    if (j == kP2) dP.y() = 1.0;
-    if (j == kP4) dP.z() = -beta;
-    if (j == kBeta) dP.z() = -p4;
     const Eigen::Matrix3d dH = dR + da * P.transpose() + a * dP.transpose();
     const Eigen::Vector3d dy = j == kBeta ? Eigen::Vector3d(u, v, 0.0) : Eigen::Vector3d::Zero();
     const Eigen::Vector3d dw = dH * y + H * dy;
@@ -143,15 +155,8 @@ MeasureStatus PatchModel::propagate(const Eigen::Matrix<double, 7, 1>& m, const 
   if (!J) return MeasureStatus::Ok;
   const std::array<Eigen::Matrix3d, 3> dRw = incrementalRotationDerivatives(omega);
   for (int j = 0; j < 10; ++j) {
-    Eigen::Matrix3d dR = Eigen::Matrix3d::Zero();
-    if (j >= 3 && j <= 5) dR = dRw[j - 3];
-    const double db = j == kBeta ? 1.0 : 0.0;
+    const auto [dR, db, dP] = partials(j, dRw, beta, p4);
     const double dp4 = j == kP4 ? 1.0 : 0.0;
-    Eigen::Vector3d dP = Eigen::Vector3d::Zero();
-    if (j == kP1) dP.x() = 1.0;
-    if (j == kP2) dP.y() = 1.0;
-    if (j == kP4) dP.z() = -beta;
-    if (j == kBeta) dP.z() = -p4;
     Eigen::Vector3d dt = Eigen::Vector3d::Zero();
     if (j == kTx) dt.x() = 1.0;
     if (j == kTy) dt.y() = 1.0;
