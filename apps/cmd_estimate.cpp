@@ -220,19 +220,17 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
   rep.extra["plane_finding"] = {{"pair_frame", tracks.first_frame + pf.pair_frame}, {"candidates", cands},
                                 {"manual", !e.finder.rois.empty()}};
   nlohmann::json summary;
-  try {
-    io::AtomicFileSet files;
-    rep.seconds = now() - t_start;
-    summary = io::writeEstimateReport(rep, e.out, &files, e.plots);
-    if (write_tracks) files.write(std::filesystem::path(e.out) / "tracks.csv", io::tracksToString(tracks));
-    if (!overlay_input.empty())
-      vision::writeOverlay(overlay_input, range, tracks, pf.labels, res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
-    files.commit();
-  } catch (const io::InputError& ex) {
-    return fail(kBadInput, ex.what());
-  } catch (const std::exception& ex) {
-    return fail(kRuntimeFailure, ex.what());
-  }
+  if (int rc = guarded([&] {
+        io::AtomicFileSet files;
+        rep.seconds = now() - t_start;
+        summary = io::writeEstimateReport(rep, e.out, &files, e.plots);
+        if (write_tracks) files.write(std::filesystem::path(e.out) / "tracks.csv", io::tracksToString(tracks));
+        if (!overlay_input.empty())
+          vision::writeOverlay(overlay_input, range, tracks, pf.labels, res,
+                               files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
+        files.commit();
+      }))
+    return rc;
   if (!e.quiet) {
     const auto& s = summary;
     fmt::print(stderr, "estimate: {} frames, focal {:.1f} +- {:.1f} px", res.frames.size(), s["focal_px"].get<double>(),
@@ -300,19 +298,16 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
   rep.command = invocation();
   if (!start_json.is_null()) rep.extra["start"] = start_json;
   nlohmann::json summary;
-  try {
-    io::AtomicFileSet files;
-    rep.seconds = now() - t_start;
-    summary = io::writePatchReport(rep, e.out, &files, e.plots);
-    if (write_patches) files.write(std::filesystem::path(e.out) / "patches.csv", io::patchesToString(tracks));
-    if (!overlay_input.empty())
-      vision::writePatchOverlay(overlay_input, range, tracks, res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
-    files.commit();
-  } catch (const io::InputError& ex) {
-    return fail(kBadInput, ex.what());
-  } catch (const std::exception& ex) {
-    return fail(kRuntimeFailure, ex.what());
-  }
+  if (int rc = guarded([&] {
+        io::AtomicFileSet files;
+        rep.seconds = now() - t_start;
+        summary = io::writePatchReport(rep, e.out, &files, e.plots);
+        if (write_patches) files.write(std::filesystem::path(e.out) / "patches.csv", io::patchesToString(tracks));
+        if (!overlay_input.empty())
+          vision::writePatchOverlay(overlay_input, range, tracks, res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
+        files.commit();
+      }))
+    return rc;
   if (!e.quiet) {
     const auto& ln = summary["last_frame_normals"];
     fmt::print(stderr,

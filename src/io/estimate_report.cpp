@@ -54,6 +54,15 @@ nlohmann::json summaryHead(const std::string& model, int frames, int first_frame
   return j;
 }
 
+void summaryTail(nlohmann::json* j, const std::string& stopped, const std::string& command, double seconds,
+                 const std::string& conventions, const nlohmann::json& extra) {
+  (*j)["stopped"] = stopped;
+  (*j)["command"] = command;
+  (*j)["seconds"] = seconds;
+  (*j)["conventions"] = conventions;
+  for (auto it = extra.begin(); it != extra.end(); ++it) (*j)[it.key()] = it.value();
+}
+
 nlohmann::json estimateSummary(const EstimateReport& r) {
   const Tracks& t = *r.tracks;
   const TrackFilterResult& res = *r.result;
@@ -118,14 +127,11 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
     pn.push_back(one);
   }
   j["pass_planes"] = pn;
-  j["stopped"] = res.stopped;
-  j["command"] = r.command;
-  j["seconds"] = r.seconds;
-  j["conventions"] =
-      "poses: camera in the reference (first) camera frame, x right, y down, z forward, COP-centred; "
-      "normals: unit, reference camera frame, pointing from the camera to the plane (n.X = d > 0); "
-      "units: the main plane's N_Z gauge (docs/estimate.md)";
-  for (auto it = r.extra.begin(); it != r.extra.end(); ++it) j[it.key()] = it.value();
+  summaryTail(&j, res.stopped, r.command, r.seconds,
+              "poses: camera in the reference (first) camera frame, x right, y down, z forward, COP-centred; "
+              "normals: unit, reference camera frame, pointing from the camera to the plane (n.X = d > 0); "
+              "units: the main plane's N_Z gauge (docs/estimate.md)",
+              r.extra);
   return j;
 }
 

@@ -59,14 +59,11 @@ nlohmann::json patchSummary(const PatchReport& r) {
   j["gated_observations"] = gated;
   j["accepted_observations"] = used;
   j["centre_rms_px"] = nr ? std::sqrt(rms2 / nr) : 0.0;
-  j["stopped"] = res.stopped;
-  j["command"] = r.command;
-  j["seconds"] = r.seconds;
-  j["conventions"] =
-      "poses: camera in the first camera frame, x right, y down, z forward, COP-centred, first-frame units of the "
-      "gauge patch (docs/patches.md); normals: unit, pointing from the camera towards the patch plane; "
-      "normal_reference = in the first camera frame";
-  for (auto it = r.extra.begin(); it != r.extra.end(); ++it) j[it.key()] = it.value();
+  summaryTail(&j, res.stopped, r.command, r.seconds,
+              "poses: camera in the first camera frame, x right, y down, z forward, COP-centred, first-frame units of "
+              "the gauge patch (docs/patches.md); normals: unit, pointing from the camera towards the patch plane; "
+              "normal_reference = in the first camera frame",
+              r.extra);
   return j;
 }
 

@@ -32,6 +32,11 @@ void poseOf(const TrackFrame& f, Eigen::Vector3d* position, Eigen::Quaterniond* 
 nlohmann::json summaryHead(const std::string& model, int frames, int first_frame, int last_frame, const ImageInfo& image,
                            double scale_px, double beta, double var_beta);
 
+/// The summary keys every estimator writes last: stopped, command, seconds, conventions, then the
+/// caller's extra keys.
+void summaryTail(nlohmann::json* j, const std::string& stopped, const std::string& command, double seconds,
+                 const std::string& conventions, const nlohmann::json& extra);
+
 /// The summary as JSON (also what summary.json holds).
 nlohmann::json estimateSummary(const EstimateReport& r);
 
