@@ -505,6 +505,28 @@ TEST(PatchPipeline, RecoversTheSphereFromPixelTracks) {
   EXPECT_EQ(static_cast<int>(a.angle_deg.size()), s.patches());
 }
 
+TEST(PatchPipeline, FusedMapsRecoverTheSphereToo) {
+  // --fused-maps: each patch's cumulative map estimated beside the filter; the same bound on the
+  // normals as without it (docs/patches.md: no gain on real sequences).
+  std::mt19937_64 rng(5);
+  const PatchScene s = makeSphereScene(SphereSceneOptions{}, rng);
+  const double s_px = 320.0;
+  const PatchTracks t = tracksFromScene(s, s_px, 0.05, 9);
+  PatchPipelineOptions o;
+  o.scale_px = s_px;
+  o.focal_px = s_px / s.beta;
+  o.sigma_affine = 0.002;
+  o.fused_maps = true;
+  const PatchRunResult r = runPatchTracks(t, o);
+  ASSERT_TRUE(r.ok()) << r.stopped;
+  double worst = 0;
+  for (const PatchEstimate& e : r.frames.back().patches) {
+    const int truth_patch = e.id == s.patches() ? 2 : e.id;
+    worst = std::max(worst, normalAngle(e.normal, s.normal[s.frames()][truth_patch]) * 57.29577951308232);
+  }
+  EXPECT_LT(worst, 3.0);
+}
+
 TEST(PatchPipeline, RejectsTooFewPatches) {
   std::mt19937_64 rng(5);
   SphereSceneOptions so;

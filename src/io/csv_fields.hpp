@@ -115,10 +115,7 @@ struct CsvHeader {
     if (!version) throw inputError(file, ln, fmt::format("not an rsfm {} file (first line must be '# {} 1')", name(), magic));
     if (!size) throw inputError(file, ln, "missing '# image_size W H' header line");
     if (!frames) throw inputError(file, ln, "missing '# frames FIRST LAST' header line");
-    if (!pp) {
-      image.cx = (image.width - 1) / 2.0;
-      image.cy = (image.height - 1) / 2.0;
-    }
+    if (!pp) image = ImageInfo::centred(image.width, image.height);
   }
 };
 

@@ -266,13 +266,17 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
       return res;
     }
     // New patches join in the frame where they are first seen.
+    // They start at the median depth g of the patches live before any of them joined.
     std::set<int> live(ids.begin(), ids.end());
-    std::vector<double> gs;
-    for (int p = 0; p < f.numPatches(); ++p) gs.push_back(f.structure(p)[2] - f.structure(p).head<2>().dot(f.model().centre(p)));
-    std::nth_element(gs.begin(), gs.begin() + gs.size() / 2, gs.end());
-    const double gmed = gs[gs.size() / 2];
+    double gmed = NAN;
     for (const auto& p : tracks.frames[k]) {
       if (live.count(p.id) || !usable(p.id) || tracks.find(k - 1, p.id)) continue;
+      if (std::isnan(gmed)) {
+        std::vector<double> gs;
+        for (int q = 0; q < f.numPatches(); ++q)
+          gs.push_back(f.structure(q)[2] - f.structure(q).head<2>().dot(f.model().centre(q)));
+        gmed = median(std::move(gs));
+      }
       Eigen::Matrix3d Pn = Ps0;
       Pn(2, 2) = std::pow(o.depth_rel_sd0 * gmed, 2);
       f.addPatch(norm(p.px), Eigen::Vector3d(0.0, 0.0, gmed), Pn);

@@ -147,10 +147,7 @@ void KltTracker::process(const cv::Mat& frame) {
 
 Tracks KltTracker::tracks(int first_frame) const {
   Tracks t;
-  t.image.width = size_.width;
-  t.image.height = size_.height;
-  t.image.cx = (size_.width - 1) / 2.0;
-  t.image.cy = (size_.height - 1) / 2.0;
+  t.image = ImageInfo::centred(size_.width, size_.height);
   t.first_frame = first_frame;
   t.frames = frames_;
   return t;

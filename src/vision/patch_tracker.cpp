@@ -108,10 +108,7 @@ void PatchTracker::process(const cv::Mat& frame) {
 
 PatchTracks PatchTracker::tracks(int first_frame) const {
   PatchTracks t;
-  t.image.width = size_.width;
-  t.image.height = size_.height;
-  t.image.cx = (size_.width - 1) / 2.0;
-  t.image.cy = (size_.height - 1) / 2.0;
+  t.image = ImageInfo::centred(size_.width, size_.height);
   t.first_frame = first_frame;
   t.radius = o_.affine.radius;
   t.frames = frames_;

@@ -15,6 +15,8 @@ struct ImageInfo {
   int height = 0;
   double cx = 0.0;  ///< principal point x (default: (width - 1) / 2)
   double cy = 0.0;  ///< principal point y (default: (height - 1) / 2)
+  /// A width x height image with the default principal point, the image centre.
+  static ImageInfo centred(int width, int height) { return {width, height, (width - 1) / 2.0, (height - 1) / 2.0}; }
 };
 
 /// One tracked feature in one frame.
