@@ -95,6 +95,13 @@ void Ekf::augment(const Eigen::VectorXd& x_new, const Eigen::MatrixXd& P_new,
   for (int i = 0; i < k; ++i) fixed_.push_back(fixed);
 }
 
+bool Ekf::projectLowerBound(int i, double lower) {
+  if (!(x_[i] < lower) || !(P_(i, i) > 0.0)) return false;
+  const Eigen::VectorXd col = P_.col(i);
+  x_ += col * ((lower - x_[i]) / col[i]);
+  return true;
+}
+
 void Ekf::setFixed(int i, bool fixed) {
   fixed_[i] = fixed;
   if (fixed) {

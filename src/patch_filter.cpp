@@ -50,11 +50,7 @@ PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
   const int iterations = steps_ <= opt_.warmup_frames ? std::max(opt_.iterations, opt_.warmup_iterations) : opt_.iterations;
   if (iterations > 1 && fs.update.applied) iterate(iterations, obs, used, x_prior, P_prior, &fs);
   fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
-  if (opt_.beta_min > 0.0 && fs.update.applied && ekf_.x()[6] < opt_.beta_min && ekf_.P()(6, 6) > 0.0) {
-    const Eigen::VectorXd col = ekf_.P().col(6);
-    ekf_.mutableX() += col * ((opt_.beta_min - ekf_.x()[6]) / col[6]);
-    fs.beta_projected = true;
-  }
+  if (opt_.beta_min > 0.0 && fs.update.applied) fs.beta_projected = ekf_.projectLowerBound(6, opt_.beta_min);
   if (!incrementalRotationValid(ekf_.x().segment<3>(3))) {
     ekf_.mutableX() = x_prior;
     ekf_.mutableP() = P_prior;

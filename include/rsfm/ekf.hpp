@@ -110,6 +110,10 @@ class Ekf {
   /// with the existing state (rows: new components).
   void augment(const Eigen::VectorXd& x_new, const Eigen::MatrixXd& P_new,
                const Eigen::MatrixXd& P_cross, bool fixed = false);
+  /// Estimate projection onto the bound x_i >= lower: when x_i < lower and P_ii > 0, moves x along
+  /// P's column i to x_i = lower (the minimum-P^-1-distance point on the constraint; P kept).
+  /// Returns true when it projected.
+  bool projectLowerBound(int i, double lower);
   /// Marks component i as fixed (its row and column of P are zeroed) or free.
   void setFixed(int i, bool fixed);
   /// Removes the listed components (e.g. lost features).

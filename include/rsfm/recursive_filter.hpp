@@ -142,12 +142,7 @@ class RecursiveFilter {
     fs.update = ekf_.update(batch, opt_.update);
     if (iterations > 1 && fs.update.applied) iterate(iterations, obs, rc, x_prior, P_prior, &batch, &used, &fs);
     fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
-    if (opt_.beta_min > 0.0 && fs.update.applied && ekf_.x()[idx::kBeta] < opt_.beta_min &&
-        ekf_.P()(idx::kBeta, idx::kBeta) > 0.0) {
-      const Eigen::VectorXd col = ekf_.P().col(idx::kBeta);
-      ekf_.mutableX() += col * ((opt_.beta_min - ekf_.x()[idx::kBeta]) / col[idx::kBeta]);
-      fs.beta_projected = true;
-    }
+    if (opt_.beta_min > 0.0 && fs.update.applied) fs.beta_projected = ekf_.projectLowerBound(idx::kBeta, opt_.beta_min);
     const Eigen::Vector3d omega = ekf_.x().template segment<3>(idx::kWx);
     if (!incrementalRotationValid(omega)) {
       // The update moved omega out of dq's domain (|omega| >= 2): roll it back and report.
