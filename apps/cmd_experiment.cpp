@@ -161,10 +161,13 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     rsfm::PatchesOptions o;
     std::string out = "out";
     std::string centres = "fused";
+    std::vector<double> amplitude, angles;  // the sphere scene's defaults, set below
     bool quiet = false;
   };
   auto pas = std::make_shared<PatchesCli>();
   auto& pa = pas->o;
+  pas->amplitude = {pa.sphere.amplitude.x(), pa.sphere.amplitude.y(), pa.sphere.amplitude.z()};
+  pas->angles = {pa.sphere.angle_x_deg, pa.sphere.angle_y_deg};
   pat->add_option("--trials", pa.trials, "trials per noise level")->capture_default_str();
   pat->add_option("--seed", pa.seed, "base random seed")->capture_default_str();
   pat->add_option("--out", pas->out, "output directory")->capture_default_str();
@@ -181,6 +184,22 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   pat->add_option("--sphere-off-axis", pa.sphere.max_off_axis_deg,
                   "sphere scene: clusters centred within this angle (deg) of the point facing the camera")
       ->capture_default_str();
+  pat->add_option("--sphere-max-obliquity", pa.sphere.max_obliquity_deg,
+                  "sphere scene: clusters seen more obliquely than this (deg) in any frame are re-drawn")
+      ->capture_default_str();
+  pat->add_option("--sphere-amplitude", pas->amplitude,
+                  "sphere scene: amplitude of the centre's sinusoidal motion along x,y,z (scene units)")
+      ->delimiter(',')
+      ->expected(3)
+      ->capture_default_str();
+  pat->add_option("--sphere-angles", pas->angles,
+                  "sphere scene: amplitude (deg) of the sphere's turn about the camera's x and y axes")
+      ->delimiter(',')
+      ->expected(2)
+      ->capture_default_str();
+  pat->add_option("--sphere-distance", pa.sphere.centre[2],
+                  "sphere scene: z of the sphere's centre in frame 0 (A&P; the COP is at -1/beta)")
+      ->capture_default_str();
   pat->add_option("--plane-patches", pa.plane.patches, "plane scene: clusters")->capture_default_str();
   pat->add_option("--beta0", pa.beta0, "initial beta")->capture_default_str();
   pat->add_option("--beta-var", pa.beta_var0, "initial beta variance")->capture_default_str();
@@ -188,7 +207,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
       ->capture_default_str();
   pat->add_option("--q-omega", pa.q_omega, "patch filter: process variance of the inter-frame rotation")
       ->capture_default_str();
-  pat->add_option("--anneal-frames", pa.anneal_frames, "patch filter: frames over which R is annealed (0: none)")
+  pat->add_option("--anneal-frames", pa.anneal_frames, "patch filter: frames over which R is annealed (0: none, -1: half of each scene's sequence)")
       ->capture_default_str();
   pat->add_option("--anneal-factor", pa.anneal_factor, "patch filter: R inflation at the first frame")
       ->capture_default_str();
@@ -260,6 +279,9 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     }});
   commands.push_back({pat, [pas]() -> int {
     auto& o = pas->o;
+    o.sphere.amplitude = Eigen::Vector3d(pas->amplitude[0], pas->amplitude[1], pas->amplitude[2]);
+    o.sphere.angle_x_deg = pas->angles[0];
+    o.sphere.angle_y_deg = pas->angles[1];
     if (!rsfm::parsePatchCentres(pas->centres, &o.centres))
       return fail(kBadInput, "--centres must be 'measured', 'predicted' or 'fused', got '" + pas->centres + "'");
     if (auto msg = rsfm::validatePatchesOptions(o); !msg.empty()) return fail(kBadInput, msg);

@@ -354,10 +354,11 @@ TEST(PatchFilter, ConsistentFromTheTruthOnTheSphere) {
 
 TEST(PatchesExperiment, SphereConvergesFromAFrontoParallelStart) {
   // Calway's test (DESIGN §5) at 10 % noise from beta0 = 0.5 and fronto-parallel patches, the
-  // experiment's protocol over 10 trials (seed 1), at frame 200 (observed: beta 4.1 %, patch
-  // normals 2.25 deg on average, worst patch 4.3 deg on average). Issue 5's "beta within 5 % and
-  // every normal within 5 deg" holds on this seed's trial means only: single trials reach 6.5 deg
-  // (other seeds 7-11 deg) and beta 9 % on seeds 2 and 3 (docs/patches.md).
+  // experiment's protocol over 10 trials (seed 1), at frame 200. Issue 5: beta within 5 % and
+  // every patch normal within 5 deg. Observed (exact): beta 2.2 % (trial mean; 8 of 10 trials
+  // within 5 %, the worst 6.1 %: the data fix beta to about 4 % per trial), patch normals 1.2 deg
+  // on average, the worst patch of any trial 2.7 deg. Seeds 1-10 all hold the trial-mean check
+  // (docs/patches.md).
   PatchesOptions o;
   o.trials = 10;
   o.plane_noise.clear();
@@ -366,10 +367,10 @@ TEST(PatchesExperiment, SphereConvergesFromAFrontoParallelStart) {
   for (int m = 0; m < 2; ++m) {
     const PatchesRow& row = r.rows[m];
     EXPECT_EQ(row.failed, 0) << row.measurement;
-    EXPECT_LT(row.beta_err_pct, 6.0) << row.measurement;
-    EXPECT_LT(row.normal_err_deg, 3.0) << row.measurement;
-    EXPECT_LT(row.max_normal_err_deg, 5.0) << row.measurement;
-    EXPECT_LT(row.worst_normal_err_deg, 8.0) << row.measurement;
+    EXPECT_LT(row.beta_err_pct, 5.0) << row.measurement;
+    EXPECT_GE(row.trials_beta_within, 7) << row.measurement;
+    EXPECT_LT(row.normal_err_deg, 2.0) << row.measurement;
+    EXPECT_LT(row.worst_normal_err_deg, 5.0) << row.measurement;
   }
 }
 

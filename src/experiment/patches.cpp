@@ -71,7 +71,7 @@ Run runPatchFilter(const PatchesOptions& o, const TrialData& td, AffineMeasureme
   fo.measurement_sd = td.sd;
   fo.q_motion << o.q_translation, o.q_translation, o.q_translation, o.q_omega, o.q_omega, o.q_omega, 0.0;
   fo.update.gate_probability = o.gate_probability;
-  fo.anneal_frames = o.anneal_frames;
+  fo.anneal_frames = o.anneal_frames >= 0 ? o.anneal_frames : F / 2;
   fo.anneal_factor = o.anneal_factor;
   fo.centres = o.centres;
   fo.centre_sd = 0.5 * (td.sd[0] + td.sd[1]);
@@ -216,6 +216,7 @@ std::string validatePatchesOptions(const PatchesOptions& o) {
   if (o.sphere.patches < PatchModel::kMinPatches || o.plane.patches < PointModel::kMinPoints)
     return "too few patches (the sphere needs 3, the plane scene 7 for the point filter)";
   if (!(o.beta0 > 0.0)) return "beta0 must be positive";
+  if (o.anneal_frames < -1) return "--anneal-frames must be -1 (half of each sequence), 0 (none) or a frame count";
   return {};
 }
 
@@ -276,12 +277,14 @@ PatchesResult runPatches(const PatchesOptions& o) {
         }
         row.max_normal_err_deg += r.max_normal_last;
         row.worst_normal_err_deg = std::max(row.worst_normal_err_deg, r.max_normal_last);
+        row.worst_beta_err_pct = std::max(row.worst_beta_err_pct, r.beta_pct.back());
+        row.trials_beta_within += r.beta_pct.back() <= o.converge_beta_pct;
         st += r.sq_t, sq += r.sq_q, nt += r.n_t, nq += r.n_q;
       }
       if (ok == 0) {
         for (int k = 0; k <= F; ++k) row.normal_by_frame[k] = row.beta_by_frame[k] = NAN;
         row.rms_t = row.rms_q = row.normal_err_deg = row.patch_normal_err_deg = row.max_normal_err_deg = row.worst_normal_err_deg =
-            row.normal_err_frame100 = row.beta_err_pct = NAN;
+            row.normal_err_frame100 = row.beta_err_pct = row.worst_beta_err_pct = NAN;
         res.rows.push_back(row);
         continue;
       }

@@ -39,13 +39,14 @@ std::string patchesMarkdown(const PatchesResult& r, const std::string& command_l
        "trial-mean normal error stays within " +
        num(o.converge_normal_deg, 1) + " deg and beta within " + num(o.converge_beta_pct, 1) +
        " % (the point filter on the sphere: beta only; -1 = never).\n\n";
-  s += "| scene | measurement | noise | rms_t | rms_q | normal err (deg) | patch normals: mean / worst / worst in any trial (deg) | normal err frame 100 | beta err (%) | frames to converge | failed |\n";
+  s += "| scene | measurement | noise | rms_t | rms_q | normal err (deg) | patch normals: mean / worst / worst in any trial (deg) | normal err frame 100 | beta err (%): mean / worst trial / trials within " + num(o.converge_beta_pct, 1) + " % | frames to converge | failed |\n";
   s += "|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const auto& row : r.rows)
-    s += fmt::format("| {} | {} | {} | {} | {} | {} | {} / {} / {} | {} | {} | {} | {}/{} |\n", row.scene,
+    s += fmt::format("| {} | {} | {} | {} | {} | {} | {} / {} / {} | {} | {} / {} / {} | {} | {}/{} |\n", row.scene,
                      row.measurement, num(row.noise, 3), num(row.rms_t, 4), num(row.rms_q, 4),
                      num(row.normal_err_deg, 2), num(row.patch_normal_err_deg, 2), num(row.max_normal_err_deg, 2),
                      num(row.worst_normal_err_deg, 2), num(row.normal_err_frame100, 2), num(row.beta_err_pct, 2),
+                     num(row.worst_beta_err_pct, 2), row.trials_beta_within,
                      row.frames_to_converge, row.failed, row.trials);
   s += "\n## Failures\n\n";
   bool any = false;
@@ -60,11 +61,11 @@ std::string patchesMarkdown(const PatchesResult& r, const std::string& command_l
   const auto& pl = o.plane;
   s += "\n## Options\n\n| option | value |\n|---|---|\n";
   s += fmt::format("| sphere | {} frames, {} clusters of {} points ({} deg across) within {} deg of the point facing the "
-                   "camera, at least {} deg apart; radius {}, centre ({}, {}, {}); over one period of the sequence the "
+                   "camera, at least {} deg apart, each in the image and seen at most {} deg obliquely in every frame; radius {}, centre ({}, {}, {}); over one period of the sequence the "
                    "centre moves by ({} sin, {} sin(+1), {} (1 - cos)) and the sphere turns {} sin deg about x and {} "
                    "sin(+1) deg about y; beta {} (f = 1, half-width 0.5) |\n",
                    sp.frames, sp.patches, sp.cluster_points + 1, sp.cluster_deg, sp.max_off_axis_deg,
-                   sp.min_separation_deg, sp.radius, sp.centre.x(), sp.centre.y(), sp.centre.z(), sp.amplitude.x(),
+                   sp.min_separation_deg, sp.max_obliquity_deg, sp.radius, sp.centre.x(), sp.centre.y(), sp.centre.z(), sp.amplitude.x(),
                    sp.amplitude.y(), sp.amplitude.z(), sp.angle_x_deg, sp.angle_y_deg, sp.beta);
   s += fmt::format("| plane | Table 1 scene: {} frames, {} deg per frame about y through (0, 0, 2), N = 2(1/sqrt3, 0, "
                    "1); {} clusters of {} points ({} deg across) centred on Table 1 points; s = {} px |\n",
@@ -75,9 +76,11 @@ std::string patchesMarkdown(const PatchesResult& r, const std::string& command_l
                    "true value |\n",
                    o.beta0, o.beta_var0, o.normal_var0, o.depth_rel_sd0);
   s += fmt::format("| patch filter | inter-frame motion prior var {:g}; q_trans {:g}, q_omega {:g} per frame "
-                   "(constant velocity); R = the true noise variances, annealed over the first {} frames from {:g} times; "
+                   "(constant velocity); R = the true noise variances, annealed over the first {} from {:g} times; "
                    "{} centres; {} update iteration(s); q_structure {:g}; gate {:g} |\n",
-                   o.motion_var0, o.q_translation, o.q_omega, o.anneal_frames, o.anneal_factor,
+                   o.motion_var0, o.q_translation, o.q_omega,
+                   o.anneal_frames >= 0 ? fmt::format("{} frames", o.anneal_frames) : std::string("half of each sequence"),
+                   o.anneal_factor,
                    toString(o.centres), o.iterations, o.q_structure, o.gate_probability);
   s += fmt::format("| point filter | reset reading, q_trans {:g}, q_omega {:g}, refined references, sigma = the "
                    "centre noise |\n",

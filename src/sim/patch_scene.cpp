@@ -15,6 +15,7 @@ namespace rsfm {
 namespace {
 
 constexpr double kDeg = 3.14159265358979323846 / 180.0;
+constexpr double kHalfWidth = 0.5;  // sphere scene image half-width (f = 1, 53 degree field of view)
 
 Eigen::Vector2d project(const Eigen::Vector3d& X, double beta) { return X.head<2>() / (1.0 + beta * X.z()); }
 
@@ -41,6 +42,23 @@ struct Cluster {
   Eigen::Vector3d normal;             // frame-0 unit surface normal at the centre (towards the camera)
   std::vector<Eigen::Vector3d> pts;   // frame-0 3-D cluster points (centre excluded)
 };
+
+/// True when every point of the cluster projects inside the image (|u|, |v| <= half_width) and
+/// the surface faces the camera, no more obliquely than max_obliquity_deg, in every frame.
+bool clusterVisible(const Cluster& c, const std::vector<Eigen::Matrix3d>& R, const std::vector<Eigen::Vector3d>& t,
+                    double beta, double half_width, double max_obliquity_deg) {
+  const Eigen::Vector3d cop(0, 0, -1.0 / beta);
+  for (size_t k = 0; k < R.size(); ++k) {
+    const Eigen::Vector3d Xc = R[k] * c.centre + t[k], n = R[k] * c.normal;
+    if (!(1.0 + beta * Xc.z() > 0.0) || !(n.dot((cop - Xc).normalized()) > std::cos(max_obliquity_deg * kDeg))) return false;
+    if (project(Xc, beta).cwiseAbs().maxCoeff() > half_width) return false;
+    for (const Eigen::Vector3d& X : c.pts) {
+      const Eigen::Vector3d Y = R[k] * X + t[k];
+      if (!(1.0 + beta * Y.z() > 0.0) || project(Y, beta).cwiseAbs().maxCoeff() > half_width) return false;
+    }
+  }
+  return true;
+}
 
 /// Builds everything from the clusters and the per-frame poses.
 PatchScene build(const std::vector<Cluster>& clusters, const std::vector<Eigen::Matrix3d>& R,
@@ -107,13 +125,31 @@ PatchScene build(const std::vector<Cluster>& clusters, const std::vector<Eigen::
 }  // namespace
 
 PatchScene makeSphereScene(const SphereSceneOptions& o, std::mt19937_64& rng) {
-  if (o.frames < 1 || o.patches < 1 || o.cluster_points < 3 || !(o.radius > 0.0) || !(o.beta > 0.0))
+  if (o.frames < 1 || o.patches < 1 || o.cluster_points < 3 || !(o.radius > 0.0) || !(o.beta > 0.0) ||
+      !(o.max_obliquity_deg > 0.0 && o.max_obliquity_deg <= 90.0))
     throw std::runtime_error("sphere scene: bad options");
   std::uniform_real_distribution<double> uni(0.0, 1.0);
   const Eigen::Vector3d cop(0, 0, -1.0 / o.beta);
   const Eigen::Vector3d towards = (cop - o.centre).normalized();
   // Orthonormal basis around the direction facing the camera.
   const Eigen::Vector3d e1 = towards.unitOrthogonal(), e2 = towards.cross(e1);
+  std::vector<Eigen::Matrix3d> R(o.frames + 1);
+  std::vector<Eigen::Vector3d> t(o.frames + 1);
+  auto turn = [&](int k) {
+    const double ph = 2.0 * 3.14159265358979323846 * k / o.frames;
+    return (Eigen::AngleAxisd(o.angle_x_deg * kDeg * std::sin(ph), Eigen::Vector3d::UnitX()) *
+            Eigen::AngleAxisd(o.angle_y_deg * kDeg * std::sin(ph + 1.0), Eigen::Vector3d::UnitY()))
+        .toRotationMatrix();
+  };
+  const Eigen::Matrix3d Q0 = turn(0);
+  for (int k = 0; k <= o.frames; ++k) {
+    const double ph = 2.0 * 3.14159265358979323846 * k / o.frames;
+    const Eigen::Vector3d Ck = o.centre + Eigen::Vector3d(o.amplitude.x() * std::sin(ph), o.amplitude.y() * std::sin(ph + 1.0),
+                                                          o.amplitude.z() * (1.0 - std::cos(ph)));
+    // X_k = C_k + Q_k Q_0^T (X_0 - C_0): the sphere turned about its centre relative to frame 0.
+    R[k] = turn(k) * Q0.transpose();
+    t[k] = Ck - R[k] * o.centre;
+  }
   std::vector<Cluster> clusters;
   const std::vector<Eigen::Vector2d> offsets = clusterOffsets(o.cluster_points, o.cluster_deg, o.beta);
   const double min_sep = o.min_separation_deg;
@@ -144,26 +180,10 @@ PatchScene makeSphereScene(const SphereSceneOptions& o, std::mt19937_64& rng) {
       }
       c.pts.push_back(org + dir * ((-b - std::sqrt(disc)) / (2.0 * a)));
     }
-    if (ok) clusters.push_back(c);
+    // Re-drawn unless the whole cluster stays in the image and faces the camera in every frame.
+    if (ok && clusterVisible(c, R, t, o.beta, kHalfWidth, o.max_obliquity_deg)) clusters.push_back(c);
   }
-  std::vector<Eigen::Matrix3d> R(o.frames + 1);
-  std::vector<Eigen::Vector3d> t(o.frames + 1);
-  auto turn = [&](int k) {
-    const double ph = 2.0 * 3.14159265358979323846 * k / o.frames;
-    return (Eigen::AngleAxisd(o.angle_x_deg * kDeg * std::sin(ph), Eigen::Vector3d::UnitX()) *
-            Eigen::AngleAxisd(o.angle_y_deg * kDeg * std::sin(ph + 1.0), Eigen::Vector3d::UnitY()))
-        .toRotationMatrix();
-  };
-  const Eigen::Matrix3d Q0 = turn(0);
-  for (int k = 0; k <= o.frames; ++k) {
-    const double ph = 2.0 * 3.14159265358979323846 * k / o.frames;
-    const Eigen::Vector3d Ck = o.centre + Eigen::Vector3d(o.amplitude.x() * std::sin(ph), o.amplitude.y() * std::sin(ph + 1.0),
-                                                          o.amplitude.z() * (1.0 - std::cos(ph)));
-    // X_k = C_k + Q_k Q_0^T (X_0 - C_0): the sphere turned about its centre relative to frame 0.
-    R[k] = turn(k) * Q0.transpose();
-    t[k] = Ck - R[k] * o.centre;
-  }
-  PatchScene s = build(clusters, R, t, o.beta, 0.5, "sphere scene");
+  PatchScene s = build(clusters, R, t, o.beta, kHalfWidth, "sphere scene");
   s.scale_px = 256.0 / 0.5;  // a 512-pixel image over the half-width 0.5
   return s;
 }

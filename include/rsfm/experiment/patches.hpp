@@ -34,8 +34,9 @@ struct PatchesOptions {
   /// process variances (translation components, rotation components).
   double motion_var0 = 1e-4;
   double q_translation = 1e-6, q_omega = 1e-6;
-  /// Patch filter: R annealing over the first frames (PatchFilterOptions::anneal_frames/_factor).
-  int anneal_frames = 50;
+  /// Patch filter: R annealing over the first frames (PatchFilterOptions::anneal_frames/_factor);
+  /// -1: over the first half of each scene's sequence (sphere 100 of 200 frames, plane 50 of 100).
+  int anneal_frames = -1;
   double anneal_factor = 100.0;
   PatchCentres centres = PatchCentres::Fused;  ///< PatchFilterOptions::centres (centre_sd = the centres' noise)
   int iterations = 1;            ///< patch filter update iterations (1 = EKF)
@@ -64,6 +65,8 @@ struct PatchesRow {
   double worst_normal_err_deg = 0;  ///< patch filter: largest patch normal error over all trials
   double normal_err_frame100 = 0;   ///< normal_err_deg's series at frame 100 (plane scene: the last frame)
   double beta_err_pct = 0;
+  double worst_beta_err_pct = 0;  ///< largest beta error over the trials (%)
+  int trials_beta_within = 0;     ///< trials whose last-frame beta error is within converge_beta_pct
   int frames_to_converge = -1;   ///< first frame from which both thresholds hold to the end (-1: never)
   int trials = 0, failed = 0;
   std::string first_failure;

@@ -30,6 +30,11 @@ struct SphereSceneOptions {
   double angle_x_deg = 15.0, angle_y_deg = 20.0;
   /// Clusters are centred within this angle (deg) of the sphere point facing the camera.
   double max_off_axis_deg = 35.0;
+  /// A cluster is re-drawn unless, in every frame, all its points are in the image and its surface
+  /// is seen no more obliquely than this (deg, between the normal and the line of sight): beyond
+  /// 75 deg a patch is foreshortened about 4x and a tracker would lose it. Without this rule the
+  /// scene kept patches that turned nearly edge-on (docs/patches.md).
+  double max_obliquity_deg = 75.0;
   /// Minimum angle between two cluster centres as seen from the sphere centre (deg).
   double min_separation_deg = 15.0;
   double cluster_deg = 6.5;         ///< cluster diameter as seen from the camera (deg)
