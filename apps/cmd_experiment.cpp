@@ -113,6 +113,8 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
       ->capture_default_str();
   pl->add_option("--q-trans", po.q_translation, "process variance of t per frame")->capture_default_str();
   pl->add_option("--q-omega", po.q_omega, "process variance of omega per frame")->capture_default_str();
+  pl->add_option("--q-structure", po.q_structure, "process variance of each plane / depth component per frame")
+      ->capture_default_str();
   pl->add_option("--reference", po.reference_model, "reference positions: exact | inflate | refine")
       ->capture_default_str();
   pl->add_option("--passes", po.passes, "passes of the plane filters (1: recursive; >1: restart from the last pass's planes and beta)")

@@ -125,6 +125,21 @@ void Ekf::remove(const std::vector<int>& indices) {
   fixed_ = std::move(fx);
 }
 
+void Ekf::reorder(const std::vector<int>& order) {
+  if (static_cast<int>(order.size()) != size()) throw std::invalid_argument("Ekf::reorder: not a permutation of the state");
+  std::vector<bool> seen(size(), false), fx;
+  for (int i : order) {
+    if (i < 0 || i >= size() || seen[i]) throw std::invalid_argument("Ekf::reorder: not a permutation of the state");
+    seen[i] = true;
+    fx.push_back(fixed_[i]);
+  }
+  Eigen::VectorXd x = x_(order);
+  Eigen::MatrixXd P = P_(order, order);
+  x_ = std::move(x);
+  P_ = std::move(P);
+  fixed_ = std::move(fx);
+}
+
 UpdateStats Ekf::update(const MeasurementBatch& batch, const UpdateOptions& opt) {
   UpdateStats st;
   const int bd = batch.block_dim;

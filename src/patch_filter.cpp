@@ -5,19 +5,29 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <cstdio>
+#include <cstdlib>
+#include <Eigen/Eigenvalues>
 
 #include "rsfm/rotation.hpp"
 
 namespace rsfm {
 
 std::string_view toString(PatchCentres c) {
-  return c == PatchCentres::Measured ? "measured" : c == PatchCentres::Predicted ? "predicted" : "fused";
+  switch (c) {
+    case PatchCentres::Measured: return "measured";
+    case PatchCentres::Predicted: return "predicted";
+    case PatchCentres::Fused: return "fused";
+    case PatchCentres::State: return "state";
+  }
+  return "?";
 }
 
 bool parsePatchCentres(std::string_view s, PatchCentres* out) {
   if (s == "measured") *out = PatchCentres::Measured;
   else if (s == "predicted") *out = PatchCentres::Predicted;
   else if (s == "fused") *out = PatchCentres::Fused;
+  else if (s == "state") *out = PatchCentres::State;
   else return false;
   return true;
 }
@@ -30,9 +40,164 @@ PatchFilter::PatchFilter(PatchModel model, Ekf ekf, int gauge, PatchFilterOption
   ekf_.setFixed(PatchModel::p4Index(gauge_), true);
   gauge_value_ = ekf_.x()[PatchModel::p4Index(gauge_)];
   centre_cov_.assign(model_.numPatches(), Eigen::Matrix2d::Identity() * opt_.centre_sd * opt_.centre_sd);
+  if (mapsInState()) {
+    if (opt_.measurement != AffineMeasurement::Exact)
+      throw std::invalid_argument("patch filter: maps in the state (centres 'state') need the exact measurement");
+    const int K = model_.numPatches();
+    Eigen::VectorXd w(6 * K);
+    for (int k = 0; k < K; ++k) w.segment<6>(6 * k) << model_.centre(k), 1.0, 0.0, 0.0, 1.0;
+    Eigen::MatrixXd Pw = Eigen::MatrixXd::Zero(6 * K, 6 * K);
+    for (int k = 0; k < K; ++k) Pw.block<6, 6>(6 * k, 6 * k) = initialMapCovariance();
+    ekf_.augment(w, Pw, Eigen::MatrixXd::Zero(6 * K, ekf_.size()));
+  }
+}
+
+Eigen::Matrix<double, 6, 6> PatchFilter::initialMapCovariance() const {
+  // Exact by definition (the template frame's map is (c, I)); a variance of 1e-6 of the
+  // measurement's keeps P non-singular (the maps are otherwise functions of the other states,
+  // and a singular P fails the update's factorization).
+  return (1e-6 * opt_.measurement_sd.array().square()).matrix().asDiagonal();
+}
+
+double PatchFilter::regaugeState(int gauge, double value, Eigen::VectorXd* y, Eigen::MatrixXd* G) const {
+  // The maps are image quantities: a rescaling of the scene leaves them unchanged.
+  const int ns = model_.stateDim(), n = ekf_.size();
+  Eigen::VectorXd yh;
+  Eigen::MatrixXd Gh;
+  const double lambda = PatchModel::regauge(ekf_.x().head(ns), gauge, value, &yh, G ? &Gh : nullptr);
+  if (!(lambda > 0.0)) return lambda;
+  *y = ekf_.x();
+  y->head(ns) = yh;
+  if (G) {
+    G->setIdentity(n, n);
+    G->topLeftCorner(ns, ns) = Gh;
+  }
+  return lambda;
+}
+
+bool PatchFilter::advance(PatchFrameStats* fs) {
+  const Eigen::Matrix<double, 7, 1> mp = ekf_.x().head<7>();
+  const double beta = mp[6];
+  const Eigen::Matrix3d Rk = incrementalRotation(mp.segment<3>(3));
+  const Eigen::Vector3d t(mp[0], mp[1], mp[2] / beta);
+  const Eigen::Vector3d tbar = t + (Eigen::Matrix3d::Identity() - Rk) * Eigen::Vector3d(0, 0, 1.0 / beta);
+  // Structure into frame k (Murray-Shapiro + gauge); the maps (PatchCentres::State) are already there.
+  const int ns = model_.stateDim(), n = ekf_.size();
+  Eigen::VectorXd xh;
+  Eigen::MatrixXd Fh;
+  fs->transition = model_.transition(ekf_.x().head(ns), gauge_, gauge_value_, &xh, &Fh, &fs->lambda);
+  if (fs->transition != MeasureStatus::Ok || !xh.allFinite() || !Fh.allFinite()) {
+    if (fs->transition == MeasureStatus::Ok) fs->transition = MeasureStatus::NonFinite;
+    fs->health |= kNonFiniteState;
+    return false;
+  }
+  ekf_.mutableX().head(ns) = xh;
+  Eigen::MatrixXd F = Eigen::MatrixXd::Identity(n, n);
+  F.topLeftCorner(ns, ns) = Fh;
+  ekf_.predict(F, Eigen::MatrixXd::Zero(n, n));
+  T_ = Rk * T_ + scale_ * tbar;
+  R_ = Rk * R_;
+  scale_ *= fs->lambda;
+  fs->health |= ekf_.health();
+  return true;
+}
+
+PatchFrameStats PatchFilter::stepState(const std::vector<AffineObservation>& obs) {
+  PatchFrameStats fs;
+  const int n = ekf_.size(), K = model_.numPatches();
+  // 1. Motion prediction (identity dynamics) and structure noise.
+  Eigen::VectorXd q = Eigen::VectorXd::Constant(n, opt_.q_structure);
+  q.head<7>() = opt_.q_motion;
+  q.tail(6 * K).setConstant(opt_.q_map);
+  ekf_.predict(q);
+  ++steps_;
+  // 2. Each map carried into frame k by the exact inter-frame map: w' = (h, B A).
+  std::vector<char> valid(K, 1);
+  {
+    const Eigen::VectorXd& x = ekf_.x();
+    const Eigen::Matrix<double, 7, 1> m = x.head<7>();
+    Eigen::VectorXd xn = x;
+    Eigen::MatrixXd F = Eigen::MatrixXd::Identity(n, n);
+    for (int k = 0; k < K; ++k) {
+      const int is = PatchModel::structureIndex(k), im = mapIndex(k);
+      Vector6d w1;
+      PatchJacobian<6> J;
+      Eigen::Matrix<double, 6, 6> Jw;
+      const MeasureStatus st = PatchModel::composeMap(m, x.segment<3>(is), x.segment<6>(im), &w1, &J, &Jw);
+      if (st != MeasureStatus::Ok || !w1.allFinite() || !J.allFinite() || !Jw.allFinite()) {
+        valid[k] = 0;  // left where it was, and not measured this frame
+        ++fs.invalid;
+        if (fs.first_problem == MeasureStatus::Ok) fs.first_problem = st != MeasureStatus::Ok ? st : MeasureStatus::NonFinite;
+        continue;
+      }
+      xn.segment<6>(im) = w1;
+      F.block(im, 0, 6, 7) = J.leftCols<7>();
+      F.block(im, is, 6, 3) = J.rightCols<3>();
+      F.block<6, 6>(im, im) = Jw;
+    }
+    ekf_.mutableX() = xn;
+    ekf_.predict(F, Eigen::MatrixXd::Zero(n, n));
+  }
+  // 3. Update: the tracker's cumulative maps, measured directly.
+  std::vector<int> used;
+  for (size_t i = 0; i < obs.size(); ++i) {
+    const AffineObservation& o = obs[i];
+    if (o.id < 0 || o.id >= K) {
+      ++fs.invalid;
+      if (fs.first_problem == MeasureStatus::Ok) fs.first_problem = MeasureStatus::UnknownFeature;
+      continue;
+    }
+    if (!valid[o.id]) continue;
+    if (!o.z.allFinite()) {
+      ++fs.invalid;
+      if (fs.first_problem == MeasureStatus::Ok) fs.first_problem = MeasureStatus::NonFinite;
+      continue;
+    }
+    used.push_back(static_cast<int>(i));
+  }
+  double inflate = 1.0;
+  if (opt_.anneal_frames > 0 && steps_ < opt_.anneal_frames)
+    inflate = 1.0 + (opt_.anneal_factor - 1.0) * (1.0 - static_cast<double>(steps_) / opt_.anneal_frames);
+  const Vector6d var = (opt_.measurement_sd.array().square() * inflate).matrix();
+  MeasurementBatch batch;
+  batch.resize(static_cast<int>(used.size()), n, PatchModel::kMeasDim);
+  for (size_t b = 0; b < used.size(); ++b) {
+    const AffineObservation& o = obs[used[b]];
+    const int r0 = 6 * static_cast<int>(b), im = mapIndex(o.id);
+    batch.residual.segment<6>(r0) = o.z - ekf_.x().segment<6>(im);
+    batch.H.block<6, 6>(r0, im).setIdentity();
+    batch.R.block<6, 6>(r0, 0) = var.asDiagonal();
+    batch.R.block<4, 4>(r0 + 2, 2) += inflate * o.map_cov;
+  }
+  const Eigen::VectorXd x_prior = ekf_.x();
+  const Eigen::MatrixXd P_prior = ekf_.P();
+  if (getenv("DBG")) {
+    Vector6d acc = Vector6d::Zero();
+    for (size_t b = 0; b < used.size(); ++b) acc += batch.residual.segment<6>(6 * b).cwiseAbs2();
+    acc = (acc / std::max<size_t>(1, used.size())).cwiseSqrt().cwiseQuotient(opt_.measurement_sd);
+    fprintf(stderr, "DBGR %d rms/sd %.2f %.2f %.2f %.2f %.2f %.2f infl %.1f\n", steps_, acc[0], acc[1], acc[2], acc[3], acc[4], acc[5], inflate);
+  }
+  fs.update = ekf_.update(batch, opt_.update);
+  fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
+  if (getenv("DBG")) fprintf(stderr, "DBG %d health %u beta %.4f sd %.4f nis %.2f used %d gated %d\n", steps_, fs.update.health, ekf_.x()[6], std::sqrt(ekf_.P()(6,6)), fs.update.nis / std::max(1, fs.update.nis_dof), fs.update.used, fs.update.gated);
+  if (opt_.beta_min > 0.0 && fs.update.applied) fs.beta_projected = ekf_.projectLowerBound(6, opt_.beta_min);
+  if (!incrementalRotationValid(ekf_.x().segment<3>(3))) {
+    ekf_.mutableX() = x_prior;
+    ekf_.mutableP() = P_prior;
+    fs.update.applied = false;
+    fs.health |= kInvalidRotation;
+    return fs;
+  }
+  fs.used = used;
+  if (fs.health != kHealthy) return fs;
+  // 4. Pose, structure into frame k; the centres are the maps' (for outputs).
+  if (!advance(&fs)) return fs;
+  for (int k = 0; k < K; ++k) model_.setCentre(k, ekf_.x().segment<2>(mapIndex(k)));
+  return fs;
 }
 
 PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
+  if (mapsInState()) return stepState(obs);
   PatchFrameStats fs;
   const int n = ekf_.size();
   // 1. Prediction of the motion (identity dynamics) and structure noise.
@@ -47,6 +212,7 @@ PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
   const Eigen::VectorXd x_prior = ekf_.x();
   const Eigen::MatrixXd P_prior = ekf_.P();
   fs.update = ekf_.update(batch, opt_.update);
+  if (getenv("DBG")) fprintf(stderr, "DBG %d health %u beta %.4f sd %.4f nis %.2f used %d gated %d\n", steps_, fs.update.health, ekf_.x()[6], std::sqrt(ekf_.P()(6,6)), fs.update.nis / std::max(1, fs.update.nis_dof), fs.update.used, fs.update.gated);
   const int iterations = steps_ <= opt_.warmup_frames ? std::max(opt_.iterations, opt_.warmup_iterations) : opt_.iterations;
   if (iterations > 1 && fs.update.applied) iterate(iterations, obs, used, x_prior, P_prior, &fs);
   fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
@@ -114,27 +280,10 @@ PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
     const Eigen::Matrix2d C = (Eigen::Matrix2d::Identity() - G) * Cp;
     covs[k] = 0.5 * (C + C.transpose());
   }
-  const double beta = mp[6];
-  const Eigen::Matrix3d Rk = incrementalRotation(mp.segment<3>(3));
-  const Eigen::Vector3d t(mp[0], mp[1], mp[2] / beta);
-  const Eigen::Vector3d tbar = t + (Eigen::Matrix3d::Identity() - Rk) * Eigen::Vector3d(0, 0, 1.0 / beta);
-  // 4. Structure into frame k (Murray-Shapiro + gauge).
-  Eigen::VectorXd xn;
-  Eigen::MatrixXd F;
-  fs.transition = model_.transition(ekf_.x(), gauge_, gauge_value_, &xn, &F, &fs.lambda);
-  if (fs.transition != MeasureStatus::Ok || !xn.allFinite() || !F.allFinite()) {
-    if (fs.transition == MeasureStatus::Ok) fs.transition = MeasureStatus::NonFinite;
-    fs.health |= kNonFiniteState;
-    return fs;
-  }
-  ekf_.mutableX() = xn;
-  ekf_.predict(F, Eigen::MatrixXd::Zero(n, n));
+  // 4. Pose, structure into frame k (Murray-Shapiro + gauge).
+  if (!advance(&fs)) return fs;
   for (int k = 0; k < model_.numPatches(); ++k) model_.setCentre(k, centres[k]);
   centre_cov_ = covs;
-  T_ = Rk * T_ + scale_ * tbar;
-  R_ = Rk * R_;
-  scale_ *= fs.lambda;
-  fs.health |= ekf_.health();
   return fs;
 }
 
@@ -236,7 +385,24 @@ void PatchFilter::iterate(int iterations, const std::vector<AffineObservation>& 
 }
 
 int PatchFilter::addPatch(const Eigen::Vector2d& centre, const Eigen::Vector3d& s0, const Eigen::Matrix3d& P0) {
-  ekf_.augment(s0, P0, Eigen::MatrixXd::Zero(3, ekf_.size()));
+  if (!mapsInState()) {
+    ekf_.augment(s0, P0, Eigen::MatrixXd::Zero(3, ekf_.size()));
+  } else {
+    // Appended as [s0, w0], then s0 moved to the end of the structure block.
+    const int n = ekf_.size(), ns = model_.stateDim();
+    Eigen::VectorXd xa(9);
+    xa << s0, centre, 1.0, 0.0, 0.0, 1.0;
+    Eigen::MatrixXd Pa = Eigen::MatrixXd::Zero(9, 9);
+    Pa.topLeftCorner<3, 3>() = P0;
+    Pa.bottomRightCorner<6, 6>() = initialMapCovariance();
+    ekf_.augment(xa, Pa, Eigen::MatrixXd::Zero(9, n));
+    std::vector<int> order;
+    for (int i = 0; i < ns; ++i) order.push_back(i);
+    for (int i = 0; i < 3; ++i) order.push_back(n + i);
+    for (int i = ns; i < n; ++i) order.push_back(i);
+    for (int i = 0; i < 6; ++i) order.push_back(n + 3 + i);
+    ekf_.reorder(order);
+  }
   centre_cov_.push_back(Eigen::Matrix2d::Identity() * opt_.centre_sd * opt_.centre_sd);
   return model_.addPatch(centre);
 }
@@ -254,7 +420,7 @@ bool PatchFilter::removePatch(int slot) {
     const int ib = PatchModel::p4Index(best);
     Eigen::VectorXd y;
     Eigen::MatrixXd G;
-    if (!(PatchModel::regauge(ekf_.x(), best, ekf_.x()[ib], &y, &G) > 0.0)) return false;
+    if (!(regaugeState(best, ekf_.x()[ib], &y, &G) > 0.0)) return false;
     ekf_.setFixed(PatchModel::p4Index(gauge_), false);
     Eigen::MatrixXd P = G * ekf_.P() * G.transpose();
     ekf_.mutableP() = 0.5 * (P + P.transpose());
@@ -264,7 +430,10 @@ bool PatchFilter::removePatch(int slot) {
     gauge_value_ = y[ib];
   }
   const int i = PatchModel::structureIndex(slot);
-  ekf_.remove({i, i + 1, i + 2});
+  std::vector<int> drop{i, i + 1, i + 2};
+  if (mapsInState())
+    for (int j = 0; j < 6; ++j) drop.push_back(mapIndex(slot) + j);
+  ekf_.remove(drop);
   model_.removePatch(slot);
   centre_cov_.erase(centre_cov_.begin() + slot);
   if (gauge_ > slot) --gauge_;

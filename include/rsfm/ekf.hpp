@@ -118,6 +118,8 @@ class Ekf {
   void setFixed(int i, bool fixed);
   /// Removes the listed components (e.g. lost features).
   void remove(const std::vector<int>& indices);
+  /// Permutes the state: new component i is old component order[i] (order is a permutation).
+  void reorder(const std::vector<int>& order);
 
   /// Current numerical health of x and P: non-finite values (kNonFiniteState), negative
   /// variance or asymmetry beyond round-off (kCovarianceNotPD).

@@ -41,6 +41,17 @@ enum class PatchCentres {
   /// measured centre. Approximate: the measured centre informs both the state and the centre, and
   /// their cross-covariance is not kept (as ReferenceModel::Refine for points).
   Fused,
+  /// Each patch's cumulative map w = (centre, 2x2 A from the patch's template frame) is part of
+  /// the state, which becomes 7 + 3K + 6K: [motion, beta | s_1..s_K | w_1..w_K]. Per frame w is
+  /// carried forward by the exact inter-frame map (PatchModel::composeMap; Jacobians with respect
+  /// to motion, structure and w itself) and the tracker's cumulative map is measured directly
+  /// (H = I on w, R = measurement_sd^2). A tracker's error lies in its map against the template,
+  /// independent from frame to frame; as inter-frame maps A_k A_{k-1}^-1 the same errors are
+  /// differenced, and treating those as independent spends the long-baseline information of the
+  /// maps (a k-frame deformation looks sqrt(k/2) times noisier than it is). Observations then hold
+  /// cumulative maps, not inter-frame ones. Exact measurement only; no iterated update (the
+  /// measurement is linear).
+  State,
 };
 std::string_view toString(PatchCentres c);
 bool parsePatchCentres(std::string_view s, PatchCentres* out);
@@ -64,6 +75,9 @@ struct PatchFilterOptions {
   PatchCentres centres = PatchCentres::Fused;
   /// Standard deviation of a measured centre (normalized units): the tracker's position noise.
   double centre_sd = 0.5 / 256.0;
+  /// PatchCentres::State: per-frame process variance of each map component (tracker drift;
+  /// normalized units^2 for the centre, unitless for A). 0: the template does not drift.
+  double q_map = 0.0;
   double beta_min = 0.0;  ///< lower bound on beta, as FilterOptions::beta_min (0: none)
   /// Iterated EKF: Gauss-Newton relinearizations of the measurement per frame (1 = plain EKF);
   /// stops when the step (infinity norm) falls below iteration_tol.
@@ -101,7 +115,9 @@ struct PatchFrameStats {
 class PatchFilter {
  public:
   /// `ekf` holds the state 7 + 3K in the model's patch order; `gauge` is the patch whose p4 is
-  /// fixed (its covariance row must be zero: it is marked fixed here).
+  /// fixed (its covariance row must be zero: it is marked fixed here). With PatchCentres::State
+  /// the maps are appended here, each patch's starting at (its model centre, I): a patch's map is
+  /// the identity in its template frame, by definition.
   PatchFilter(PatchModel model, Ekf ekf, int gauge, PatchFilterOptions options);
 
   /// One frame. `obs[i].id` is a patch slot; patches without an observation keep their centre
@@ -111,6 +127,9 @@ class PatchFilter {
   /// Adds a patch centred at `centre` (current frame) with prior structure s0 and covariance P0
   /// (no cross-covariance with the state). Returns its slot.
   int addPatch(const Eigen::Vector2d& centre, const Eigen::Vector3d& s0, const Eigen::Matrix3d& P0);
+  /// State index of patch k's cumulative map (PatchCentres::State; 6 entries: centre, A row-major).
+  int mapIndex(int k) const { return 7 + 3 * numPatches() + 6 * k; }
+  bool mapsInState() const { return opt_.centres == PatchCentres::State; }
   /// Covariance of patch k's centre (normalized units^2; PatchCentres::Fused, else centre_sd^2 I).
   const Eigen::Matrix2d& centreCovariance(int k) const { return centre_cov_[k]; }
   /// Removes a patch (slots above it shift down by one). Moves the gauge first if it is the gauge
@@ -135,6 +154,12 @@ class PatchFilter {
   const Eigen::Vector3d& translation() const { return T_; }
 
  private:
+  PatchFrameStats stepState(const std::vector<AffineObservation>& obs);
+  Eigen::Matrix<double, 6, 6> initialMapCovariance() const;
+  /// Pose accumulation and the structure's transition into the new frame (maps unchanged).
+  bool advance(PatchFrameStats* fs);
+  /// Rescaling of the structure part (PatchModel::regauge) applied to the whole state.
+  double regaugeState(int gauge, double value, Eigen::VectorXd* y, Eigen::MatrixXd* G) const;
   void linearize(const Eigen::VectorXd& x, const std::vector<AffineObservation>& obs, MeasurementBatch* batch,
                  std::vector<int>* used, PatchFrameStats* fs) const;
   void iterate(int iterations, const std::vector<AffineObservation>& obs, const std::vector<int>& used,

@@ -65,6 +65,7 @@ FilterOptions filterOptions(const PlanesOptions& o, double noise_px) {
   // Noise-free data are filtered assuming 0.1 px (a zero R would make the first update absolute).
   fo.sigma_uv = std::max(noise_px, 0.1) / o.scene.scale_px;
   fo.q_motion << o.q_translation, o.q_translation, o.q_translation, o.q_omega, o.q_omega, o.q_omega, o.q_beta;
+  fo.q_structure = o.q_structure;
   fo.update.gate_probability = o.gate_probability;
   parseReferenceModel(o.reference_model, &fo.reference);
   fo.beta_min = o.beta_min;
@@ -380,7 +381,7 @@ std::string validatePlanesOptions(const PlanesOptions& o) {
     return "total rotation (--deg-per-frame x --frames) must stay under 60 degrees";
   if (!(o.beta0 > 0.0) || !(o.beta_var0 >= 0.0)) return "--beta0 must be positive, --beta-var non-negative";
   if (!(o.n_rel > 0.0) || !std::isfinite(o.n_rel)) return "--n-rel must be positive";
-  for (double q : {o.q_translation, o.q_omega, o.q_beta})
+  for (double q : {o.q_translation, o.q_omega, o.q_beta, o.q_structure})
     if (!(q >= 0.0) || !std::isfinite(q)) return "process variances must be finite and non-negative";
   if (ReferenceModel r; !parseReferenceModel(o.reference_model, &r))
     return "--reference must be 'exact', 'inflate' or 'refine'";

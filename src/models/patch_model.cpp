@@ -41,7 +41,8 @@ Partials partials(int j, const std::array<Eigen::Matrix3d, 3>& dRw, double beta,
 }  // namespace
 
 MeasureStatus PatchModel::exact(const Eigen::Matrix<double, 7, 1>& m, const Eigen::Vector3d& s,
-                                const Eigen::Vector2d& c, Vector6d* z, PatchJacobian<6>* J) {
+                                const Eigen::Vector2d& c, Vector6d* z, PatchJacobian<6>* J,
+                                Eigen::Matrix<double, 6, 2>* Jc) {
   if (!finite(m, s) || !c.allFinite()) return MeasureStatus::NonFinite;
   const Eigen::Vector3d omega = m.segment<3>(3);
   if (!incrementalRotationValid(omega)) return MeasureStatus::InvalidRotation;
@@ -63,6 +64,14 @@ MeasureStatus PatchModel::exact(const Eigen::Matrix<double, 7, 1>& m, const Eige
   const Eigen::Vector2d h = w.head<2>() / (beta * w.z());
   const Eigen::Matrix2d A = (H.topLeftCorner<2, 2>() - beta * h * H.block<1, 2>(2, 0)) / w.z();
   if (z) *z << h, A(0, 0), A(0, 1), A(1, 0), A(1, 1);
+  if (Jc) {
+    // y = (beta u, beta v, 1): dw/dc_j = beta H e_j, so dh/dc = A and
+    // dA/dc_j = -(beta / w3) (A e_j H[2, 0:2] + H[2, j] A).
+    for (int j = 0; j < 2; ++j) {
+      const Eigen::Matrix2d dA = -(beta / w.z()) * (A.col(j) * H.block<1, 2>(2, 0) + H(2, j) * A);
+      Jc->col(j) << A.col(j), dA(0, 0), dA(0, 1), dA(1, 0), dA(1, 1);
+    }
+  }
   if (!J) return MeasureStatus::Ok;
   const std::array<Eigen::Matrix3d, 3> dRw = incrementalRotationDerivatives(omega);
   for (int j = 0; j < 10; ++j) {
@@ -84,6 +93,44 @@ MeasureStatus PatchModel::exact(const Eigen::Matrix<double, 7, 1>& m, const Eige
     J->col(j) << dh, dA(0, 0), dA(0, 1), dA(1, 0), dA(1, 1);
   }
   return J->allFinite() ? MeasureStatus::Ok : MeasureStatus::NonFinite;
+}
+
+MeasureStatus PatchModel::composeMap(const Eigen::Matrix<double, 7, 1>& m, const Eigen::Vector3d& s, const Vector6d& w,
+                                      Vector6d* w_new, PatchJacobian<6>* J, Eigen::Matrix<double, 6, 6>* Jw) {
+  if (!w.allFinite()) return MeasureStatus::NonFinite;
+  Vector6d z;
+  PatchJacobian<6> Jz;
+  Eigen::Matrix<double, 6, 2> Jc;
+  const MeasureStatus st = exact(m, s, w.head<2>(), &z, J || Jw ? &Jz : nullptr, Jw ? &Jc : nullptr);
+  if (st != MeasureStatus::Ok) return st;
+  Eigen::Matrix2d B, A;
+  B << z[2], z[3], z[4], z[5];
+  A << w[2], w[3], w[4], w[5];
+  const Eigen::Matrix2d BA = B * A;
+  if (w_new) *w_new << z[0], z[1], BA(0, 0), BA(0, 1), BA(1, 0), BA(1, 1);
+  // d(B A) = dB A (B's parameters) + B dA (the previous map).
+  auto mapColumn = [&](const Vector6d& dz) {
+    Eigen::Matrix2d dB;
+    dB << dz[2], dz[3], dz[4], dz[5];
+    const Eigen::Matrix2d d = dB * A;
+    Vector6d out;
+    out << dz[0], dz[1], d(0, 0), d(0, 1), d(1, 0), d(1, 1);
+    return out;
+  };
+  if (J)
+    for (int j = 0; j < 10; ++j) J->col(j) = mapColumn(Jz.col(j));
+  if (Jw) {
+    Jw->setZero();
+    for (int j = 0; j < 2; ++j) Jw->col(j) = mapColumn(Jc.col(j));
+    for (int r = 0; r < 2; ++r)
+      for (int c = 0; c < 2; ++c) {
+        Eigen::Matrix2d E = Eigen::Matrix2d::Zero();
+        E(r, c) = 1.0;
+        const Eigen::Matrix2d d = B * E;
+        Jw->block<4, 1>(2, 2 + 2 * r + c) << d(0, 0), d(0, 1), d(1, 0), d(1, 1);
+      }
+  }
+  return MeasureStatus::Ok;
 }
 
 MeasureStatus PatchModel::instantaneous(const Eigen::Matrix<double, 7, 1>& m, const Eigen::Vector3d& s,

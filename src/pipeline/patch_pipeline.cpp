@@ -79,6 +79,10 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
   const double s = o.scale_px > 0 ? o.scale_px : std::max(W, Hh) / 2.0;
   if (!(o.sigma_px > 0) || !(o.sigma_affine > 0)) throw std::invalid_argument("noise standard deviations must be positive");
   if (!(o.depth0 > 0)) throw std::invalid_argument("depth0 must be positive");
+  const bool maps_in_state = o.centres == PatchCentres::State;
+  if (maps_in_state && o.fused_maps) throw std::invalid_argument("fused maps and maps in the state (centres 'state') exclude each other");
+  if (maps_in_state && o.measurement != AffineMeasurement::Exact)
+    throw std::invalid_argument("maps in the state (centres 'state') need the exact measurement");
   const double focal0 = o.focal_px > 0 ? o.focal_px : o.focal0_px > 0 ? o.focal0_px : std::max(W, Hh);
   const double beta0 = s / focal0;
   const Eigen::Vector2d cpx(tracks.image.cx, tracks.image.cy);
@@ -104,6 +108,12 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
   };
   for (const auto& p : tracks.frames[0])
     if (usable(p.id)) startMap(p);
+  // Maps in the state start at the identity where a patch enters the filter; a patch whose
+  // template frame lies before the tracks' first frame is measured relative to its entry map.
+  std::map<int, Eigen::Matrix2d> entry_inv;
+  auto enter = [&](const PatchObservation& p) { entry_inv[p.id] = p.A.inverse(); };
+  for (const auto& p : tracks.frames[0])
+    if (usable(p.id)) enter(p);
   if (K < PatchModel::kMinPatches)
     throw std::invalid_argument("only " + std::to_string(K) + " patches (seen in at least " +
                                 std::to_string(o.min_patch_frames) + " frames) in the first frame; the patch filter needs " +
@@ -197,7 +207,9 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
       AffineObservation ob;
       ob.id = p;
       Eigen::Matrix2d Ai;
-      if (o.fused_maps) {
+      if (maps_in_state) {
+        Ai = b->A * entry_inv.at(ids[p]);  // cumulative since the patch entered
+      } else if (o.fused_maps) {
         // The previous map is the fused one: z_A = A_k Ahat^-1, its uncertainty J C J^T with
         // J = -(z_A (x) Ahat^-T) (row-major vectorization).
         const FusedMap& m = maps.at(ids[p]);
@@ -282,6 +294,7 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
       f.addPatch(norm(p.px), Eigen::Vector3d(0.0, 0.0, gmed), Pn);
       ids.push_back(p.id);
       startMap(p);
+      enter(p);
       ++res.entered;
       ++res.joined;
     }

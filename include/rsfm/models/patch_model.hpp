@@ -52,7 +52,8 @@ enum class AffineMeasurement {
 struct AffineObservation {
   int id = 0;  ///< patch index in the model (state slot)
   /// (h_u, h_v, A_11, A_12, A_21, A_22): the patch centre in the current frame (normalized units)
-  /// and the local affine map from the previous frame to the current one (unitless).
+  /// and the local affine map from the previous frame to the current one (unitless); with
+  /// PatchCentres::State the map from the patch's template frame instead (cumulative).
   Vector6d z = Vector6d::Zero();
   /// Extra covariance of the map entries (A_11, A_12, A_21, A_22), added to the filter's R: e.g.
   /// the uncertainty of the previous cumulative map when A is derived from fused maps
@@ -89,9 +90,17 @@ class PatchModel {
   void removePatch(int k) { centres_.erase(centres_.begin() + k); }
 
   /// Exact measurement of a patch centred at c (previous frame) with structure s = (p1, p2, p4)
-  /// under motion m = x.head<7>(); J (optional) is dz/d(m, s).
+  /// under motion m = x.head<7>(); J (optional) is dz/d(m, s), Jc (optional) dz/dc:
+  /// dh/dc = A and dA/dc_j = -(beta / w_3) (A e_j H[2, 0:2] + H[2, j] A).
   static MeasureStatus exact(const Eigen::Matrix<double, 7, 1>& m, const Eigen::Vector3d& s,
-                             const Eigen::Vector2d& c, Vector6d* z, PatchJacobian<6>* J);
+                             const Eigen::Vector2d& c, Vector6d* z, PatchJacobian<6>* J,
+                             Eigen::Matrix<double, 6, 2>* Jc = nullptr);
+  /// A patch's cumulative map w = (c, A) (centre in the previous frame, 2x2 map from the patch's
+  /// template frame, row-major) carried into the current frame by the exact inter-frame map
+  /// (h, B) about c: w' = (h, B A). J (optional) is dw'/d(m, s), Jw (optional) dw'/dw.
+  /// Used by PatchCentres::State.
+  static MeasureStatus composeMap(const Eigen::Matrix<double, 7, 1>& m, const Eigen::Vector3d& s, const Vector6d& w,
+                                  Vector6d* w_new, PatchJacobian<6>* J, Eigen::Matrix<double, 6, 6>* Jw);
   /// Instantaneous (first-order) measurement, same layout.
   static MeasureStatus instantaneous(const Eigen::Matrix<double, 7, 1>& m, const Eigen::Vector3d& s,
                                      const Eigen::Vector2d& c, Vector6d* z, PatchJacobian<6>* J);
