@@ -50,7 +50,7 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--patch-sigma-px", e->patch.sigma_px, "patches: centre noise sd (px)")->capture_default_str();
   a->add_option("--sigma-affine", e->patch.sigma_affine, "patches: noise sd of each entry of the inter-frame map A")
       ->capture_default_str();
-  a->add_option("--centres", e->centres, "patches: centres measured | predicted | fused (docs/patches.md)")
+  a->add_option("--centres", e->centres, "patches: centres measured | predicted | fused | state (docs/patches.md)")
       ->capture_default_str();
   a->add_option("--measurement", e->measurement, "patches: affine measurement exact | instantaneous")->capture_default_str();
   a->add_option("--fused-maps", e->patch.fused_maps, "patches: estimate each patch's cumulative map beside the filter (true/false)")
@@ -103,7 +103,11 @@ std::string finishEstimateOptions(EstimateCli* e) {
   if (!e->patches && !parseTrackModel(e->model, &e->filter.model))
     return "--model must be point, plane, planes or patches, got '" + e->model + "'";
   if (!parsePatchCentres(e->centres, &e->patch.centres))
-    return "--centres must be measured, predicted or fused, got '" + e->centres + "'";
+    return "--centres must be measured, predicted, fused or state, got '" + e->centres + "'";
+  if (e->patch.centres == PatchCentres::State && e->measurement != "exact")
+    return "--centres state needs --measurement exact";
+  if (e->patch.centres == PatchCentres::State && e->patch.fused_maps)
+    return "--centres state and --fused-maps exclude each other (the maps are already in the state)";
   if (e->measurement == "exact") e->patch.measurement = AffineMeasurement::Exact;
   else if (e->measurement == "instantaneous") e->patch.measurement = AffineMeasurement::Instantaneous;
   else return "--measurement must be exact or instantaneous, got '" + e->measurement + "'";

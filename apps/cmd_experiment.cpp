@@ -286,6 +286,8 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     o.sphere.angle_y_deg = pas->angles[1];
     if (!rsfm::parsePatchCentres(pas->centres, &o.centres))
       return fail(kBadInput, "--centres must be 'measured', 'predicted' or 'fused', got '" + pas->centres + "'");
+    if (o.centres == rsfm::PatchCentres::State)
+      return fail(kBadInput, "--centres state needs tracked (cumulative) maps; the experiment's measurements are inter-frame maps");
     if (auto msg = rsfm::validatePatchesOptions(o); !msg.empty()) return fail(kBadInput, msg);
     if (auto msg = rsfm::io::ensureWritableDirectory(pas->out); !msg.empty()) return fail(kBadInput, msg);
     if (!pas->quiet) o.progress = progressReporter("patches");

@@ -5,9 +5,6 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
-#include <cstdio>
-#include <cstdlib>
-#include <Eigen/Eigenvalues>
 
 #include "rsfm/rotation.hpp"
 
@@ -171,15 +168,8 @@ PatchFrameStats PatchFilter::stepState(const std::vector<AffineObservation>& obs
   }
   const Eigen::VectorXd x_prior = ekf_.x();
   const Eigen::MatrixXd P_prior = ekf_.P();
-  if (getenv("DBG")) {
-    Vector6d acc = Vector6d::Zero();
-    for (size_t b = 0; b < used.size(); ++b) acc += batch.residual.segment<6>(6 * b).cwiseAbs2();
-    acc = (acc / std::max<size_t>(1, used.size())).cwiseSqrt().cwiseQuotient(opt_.measurement_sd);
-    fprintf(stderr, "DBGR %d rms/sd %.2f %.2f %.2f %.2f %.2f %.2f infl %.1f\n", steps_, acc[0], acc[1], acc[2], acc[3], acc[4], acc[5], inflate);
-  }
   fs.update = ekf_.update(batch, opt_.update);
   fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
-  if (getenv("DBG")) fprintf(stderr, "DBG %d health %u beta %.4f sd %.4f nis %.2f used %d gated %d\n", steps_, fs.update.health, ekf_.x()[6], std::sqrt(ekf_.P()(6,6)), fs.update.nis / std::max(1, fs.update.nis_dof), fs.update.used, fs.update.gated);
   if (opt_.beta_min > 0.0 && fs.update.applied) fs.beta_projected = ekf_.projectLowerBound(6, opt_.beta_min);
   if (!incrementalRotationValid(ekf_.x().segment<3>(3))) {
     ekf_.mutableX() = x_prior;
@@ -212,7 +202,6 @@ PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
   const Eigen::VectorXd x_prior = ekf_.x();
   const Eigen::MatrixXd P_prior = ekf_.P();
   fs.update = ekf_.update(batch, opt_.update);
-  if (getenv("DBG")) fprintf(stderr, "DBG %d health %u beta %.4f sd %.4f nis %.2f used %d gated %d\n", steps_, fs.update.health, ekf_.x()[6], std::sqrt(ekf_.P()(6,6)), fs.update.nis / std::max(1, fs.update.nis_dof), fs.update.used, fs.update.gated);
   const int iterations = steps_ <= opt_.warmup_frames ? std::max(opt_.iterations, opt_.warmup_iterations) : opt_.iterations;
   if (iterations > 1 && fs.update.applied) iterate(iterations, obs, used, x_prior, P_prior, &fs);
   fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);

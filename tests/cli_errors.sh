@@ -219,6 +219,10 @@ check "estimate: negative focal" 2 "$V4" -- estimate --tracks "$T4/four.csv" --o
 check "experiment patches: negative noise" 2 "$D" -- experiment patches --out "$D" --plane-noise 0.1,-0.2
 check "experiment patches: bad centres" 2 "$D" -- experiment patches --out "$D" --centres somewhere
 check "experiment patches: too few patches" 2 "$D" -- experiment patches --out "$D" --sphere-patches 2
+check "experiment patches: maps in the state need tracked maps" 2 "$D" -- experiment patches --out "$D" --centres state
+check "experiment patches: obliquity over 90 deg" 2 "$D" -- experiment patches --out "$D" --sphere-max-obliquity 95
+check "experiment patches: anneal frames -2" 2 "$D" -- experiment patches --out "$D" --anneal-frames -2
+check "experiment planes: negative structure noise" 2 "$D" -- experiment planes --out "$D" --q-structure -1
 check "track --patches: radius 1" 2 "$V4" -- track "$TMP/gap/g%d.pgm" --patches --patch-radius 1 --out "$V4" --quiet
 check "estimate: missing patches file" 2 "$V4" -- estimate --patches "$T4/none.csv" --out "$V4" --quiet
 check "estimate: tracks and patches" 2 "$V4" -- estimate --patches "$T4/four.csv" --tracks "$T4/four.csv" --out "$V4" --quiet
@@ -231,6 +235,8 @@ printf '# rsfm-patches 1\n# image_size 640 480\n# frames 0 3\n# radius 15\nframe
 for k in 0 1 2 3; do for i in 0 1; do echo "$k,$i,$((100 + 200 * i)),100,$((100 + 200 * i + k)),100,1,0,0,1,$k,0,0" >>"$T4/twop.csv"; done; done
 check "estimate: two patches (the filter needs 3)" 2 "$V4" -- estimate --patches "$T4/twop.csv" --out "$V4" --quiet
 check "estimate: bad measurement" 2 "$V4" -- estimate --patches "$T4/twop.csv" --measurement approximate --out "$V4" --quiet
+check "estimate: maps in the state, instantaneous" 2 "$V4" -- estimate --patches "$T4/twop.csv" --centres state --measurement instantaneous --out "$V4" --quiet
+check "estimate: maps in the state and fused maps" 2 "$V4" -- estimate --patches "$T4/twop.csv" --centres state --fused-maps true --out "$V4" --quiet
 
 # --help succeeds.
 if "$RSFM" experiment table1 --help >/dev/null 2>&1; then pass=$((pass + 1)); echo "ok   --help"; else fail=$((fail + 1)); echo "FAIL --help"; fi

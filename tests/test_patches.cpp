@@ -565,8 +565,10 @@ TEST(PatchPipeline, RejectsTooFewPatches) {
 }
 
 TEST(PatchPipeline, MapsInTheStateRecoverTheSphere) {
-  // As RecoversTheSphereFromPixelTracks with PatchCentres::State: the cumulative maps measured
-  // directly (0.05 px centres, maps noise-free up to the scene's cluster fit).
+  // As RecoversTheSphereFromPixelTracks with PatchCentres::State: the tracker's cumulative maps
+  // are measured directly (state 7 + 9K). Measured: every normal within 1.4 deg (the fused
+  // centres: 3 deg bound), the rotation 1.4 deg off at frame 200 (fused: 4.8 deg): the maps'
+  // long-baseline information is kept.
   std::mt19937_64 rng(5);
   const PatchScene s = makeSphereScene(SphereSceneOptions{}, rng);
   const double s_px = 320.0;
@@ -585,12 +587,16 @@ TEST(PatchPipeline, MapsInTheStateRecoverTheSphere) {
   double worst = 0;
   for (const PatchEstimate& e : last.patches) {
     const int truth_patch = e.id == s.patches() ? 2 : e.id;
-    const double err = normalAngle(e.normal, s.normal[s.frames()][truth_patch]) * 57.29577951308232;
-    std::printf("patch %d err %.2f sd %.2f\n", e.id, err, e.normal_sd_deg);
-    worst = std::max(worst, err);
+    worst = std::max(worst, normalAngle(e.normal, s.normal[s.frames()][truth_patch]) * 57.29577951308232);
   }
-  EXPECT_LT(worst, 3.0);
-  std::printf("rot err %.2f\n", rotationAngle(last.R, s.R[s.frames()]) * 57.29577951308232);
+  EXPECT_LT(worst, 2.0);
+  EXPECT_LT(rotationAngle(last.R, s.R[s.frames()]) * 57.29577951308232, 2.5);
+  // The instantaneous measurement and fused maps are refused with maps in the state.
+  o.measurement = AffineMeasurement::Instantaneous;
+  EXPECT_THROW(runPatchTracks(t, o), std::invalid_argument);
+  o.measurement = AffineMeasurement::Exact;
+  o.fused_maps = true;
+  EXPECT_THROW(runPatchTracks(t, o), std::invalid_argument);
 }
 
 }  // namespace

@@ -216,6 +216,8 @@ std::string validatePatchesOptions(const PatchesOptions& o) {
   if (o.sphere.patches < PatchModel::kMinPatches || o.plane.patches < PointModel::kMinPoints)
     return "too few patches (the sphere needs 3, the plane scene 7 for the point filter)";
   if (!(o.beta0 > 0.0)) return "beta0 must be positive";
+  if (!(o.sphere.max_obliquity_deg > 0.0 && o.sphere.max_obliquity_deg <= 90.0))
+    return "--sphere-max-obliquity must be in (0, 90] degrees";
   if (o.anneal_frames < -1) return "--anneal-frames must be -1 (half of each sequence), 0 (none) or a frame count";
   return {};
 }
