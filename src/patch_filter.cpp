@@ -99,15 +99,43 @@ bool PatchFilter::advance(PatchFrameStats* fs) {
   return true;
 }
 
+void PatchFilter::predictMotion() {
+  // Identity dynamics for the motion and beta (P += Q), q_structure on the structure, q_map on
+  // the maps in the state.
+  Eigen::VectorXd q = Eigen::VectorXd::Constant(ekf_.size(), opt_.q_structure);
+  q.head<7>() = opt_.q_motion;
+  if (mapsInState()) q.tail(6 * model_.numPatches()).setConstant(opt_.q_map);
+  ekf_.predict(q);
+  ++steps_;
+}
+
+double PatchFilter::annealInflation() const {
+  // The first anneal_frames frames inflate R, linearly back to 1 (see the options).
+  if (opt_.anneal_frames > 0 && steps_ < opt_.anneal_frames)
+    return 1.0 + (opt_.anneal_factor - 1.0) * (1.0 - static_cast<double>(steps_) / opt_.anneal_frames);
+  return 1.0;
+}
+
+bool PatchFilter::checkUpdate(const Eigen::VectorXd& x_prior, const Eigen::MatrixXd& P_prior, const std::vector<int>& used,
+                              PatchFrameStats* fs) {
+  fs->health = ekf_.health() | (fs->update.health & ~kTooFewMeasurements);
+  if (opt_.beta_min > 0.0 && fs->update.applied) fs->beta_projected = ekf_.projectLowerBound(6, opt_.beta_min);
+  if (!incrementalRotationValid(ekf_.x().segment<3>(3))) {  // rolled back
+    ekf_.mutableX() = x_prior;
+    ekf_.mutableP() = P_prior;
+    fs->update.applied = false;
+    fs->health |= kInvalidRotation;
+    return false;
+  }
+  fs->used = used;
+  return fs->health == kHealthy;
+}
+
 PatchFrameStats PatchFilter::stepState(const std::vector<AffineObservation>& obs) {
   PatchFrameStats fs;
   const int n = ekf_.size(), K = model_.numPatches();
   // 1. Motion prediction (identity dynamics) and structure noise.
-  Eigen::VectorXd q = Eigen::VectorXd::Constant(n, opt_.q_structure);
-  q.head<7>() = opt_.q_motion;
-  q.tail(6 * K).setConstant(opt_.q_map);
-  ekf_.predict(q);
-  ++steps_;
+  predictMotion();
   // 2. Each map carried into frame k by the exact inter-frame map: w' = (h, B A).
   std::vector<char> valid(K, 1);
   {
@@ -152,9 +180,7 @@ PatchFrameStats PatchFilter::stepState(const std::vector<AffineObservation>& obs
     }
     used.push_back(static_cast<int>(i));
   }
-  double inflate = 1.0;
-  if (opt_.anneal_frames > 0 && steps_ < opt_.anneal_frames)
-    inflate = 1.0 + (opt_.anneal_factor - 1.0) * (1.0 - static_cast<double>(steps_) / opt_.anneal_frames);
+  const double inflate = annealInflation();
   const Vector6d var = (opt_.measurement_sd.array().square() * inflate).matrix();
   MeasurementBatch batch;
   batch.resize(static_cast<int>(used.size()), n, PatchModel::kMeasDim);
@@ -169,17 +195,7 @@ PatchFrameStats PatchFilter::stepState(const std::vector<AffineObservation>& obs
   const Eigen::VectorXd x_prior = ekf_.x();
   const Eigen::MatrixXd P_prior = ekf_.P();
   fs.update = ekf_.update(batch, opt_.update);
-  fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
-  if (opt_.beta_min > 0.0 && fs.update.applied) fs.beta_projected = ekf_.projectLowerBound(6, opt_.beta_min);
-  if (!incrementalRotationValid(ekf_.x().segment<3>(3))) {
-    ekf_.mutableX() = x_prior;
-    ekf_.mutableP() = P_prior;
-    fs.update.applied = false;
-    fs.health |= kInvalidRotation;
-    return fs;
-  }
-  fs.used = used;
-  if (fs.health != kHealthy) return fs;
+  if (!checkUpdate(x_prior, P_prior, used, &fs)) return fs;
   // 4. Pose, structure into frame k; the centres are the maps' (for outputs).
   if (!advance(&fs)) return fs;
   for (int k = 0; k < K; ++k) model_.setCentre(k, ekf_.x().segment<2>(mapIndex(k)));
@@ -189,12 +205,8 @@ PatchFrameStats PatchFilter::stepState(const std::vector<AffineObservation>& obs
 PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
   if (mapsInState()) return stepState(obs);
   PatchFrameStats fs;
-  const int n = ekf_.size();
   // 1. Prediction of the motion (identity dynamics) and structure noise.
-  Eigen::VectorXd q = Eigen::VectorXd::Constant(n, opt_.q_structure);
-  q.head<7>() = opt_.q_motion;
-  ekf_.predict(q);
-  ++steps_;
+  predictMotion();
   // 2. Update: one 6-row block per observed patch.
   std::vector<int> used;
   MeasurementBatch batch;
@@ -204,17 +216,7 @@ PatchFrameStats PatchFilter::step(const std::vector<AffineObservation>& obs) {
   fs.update = ekf_.update(batch, opt_.update);
   const int iterations = steps_ <= opt_.warmup_frames ? std::max(opt_.iterations, opt_.warmup_iterations) : opt_.iterations;
   if (iterations > 1 && fs.update.applied) iterate(iterations, obs, used, x_prior, P_prior, &fs);
-  fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
-  if (opt_.beta_min > 0.0 && fs.update.applied) fs.beta_projected = ekf_.projectLowerBound(6, opt_.beta_min);
-  if (!incrementalRotationValid(ekf_.x().segment<3>(3))) {
-    ekf_.mutableX() = x_prior;
-    ekf_.mutableP() = P_prior;
-    fs.update.applied = false;
-    fs.health |= kInvalidRotation;
-    return fs;
-  }
-  fs.used = used;
-  if (fs.health != kHealthy) return fs;
+  if (!checkUpdate(x_prior, P_prior, used, &fs)) return fs;
   // 3. Centres into frame k, pose accumulation.
   const Eigen::Matrix<double, 7, 1> mp = ekf_.x().head<7>();
   std::vector<char> measured(model_.numPatches(), 0);
@@ -306,10 +308,7 @@ void PatchFilter::linearize(const Eigen::VectorXd& x, const std::vector<AffineOb
     jacobians.push_back(J);
   }
   batch->resize(static_cast<int>(used->size()), n, PatchModel::kMeasDim);
-  // Annealing: the first anneal_frames frames inflate R, linearly back to 1 (see the options).
-  double inflate = 1.0;
-  if (opt_.anneal_frames > 0 && steps_ < opt_.anneal_frames)
-    inflate = 1.0 + (opt_.anneal_factor - 1.0) * (1.0 - static_cast<double>(steps_) / opt_.anneal_frames);
+  const double inflate = annealInflation();
   const Vector6d sd = opt_.measurement_sd * std::sqrt(inflate);
   for (size_t b = 0; b < used->size(); ++b) {
     const int k = obs[(*used)[b]].id, r0 = 6 * static_cast<int>(b);

@@ -155,6 +155,12 @@ class PatchFilter {
 
  private:
   PatchFrameStats stepState(const std::vector<AffineObservation>& obs);
+  void predictMotion();
+  double annealInflation() const;
+  /// After an update: health, the beta bound, the rotation's validity (rolled back to the
+  /// prior if invalid). False when the frame must stop here.
+  bool checkUpdate(const Eigen::VectorXd& x_prior, const Eigen::MatrixXd& P_prior, const std::vector<int>& used,
+                   PatchFrameStats* fs);
   Eigen::Matrix<double, 6, 6> initialMapCovariance() const;
   /// Pose accumulation and the structure's transition into the new frame (maps unchanged).
   bool advance(PatchFrameStats* fs);
