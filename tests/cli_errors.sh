@@ -223,6 +223,7 @@ check "experiment patches: maps in the state need tracked maps" 2 "$D" -- experi
 check "experiment patches: obliquity over 90 deg" 2 "$D" -- experiment patches --out "$D" --sphere-max-obliquity 95
 check "experiment patches: anneal frames -2" 2 "$D" -- experiment patches --out "$D" --anneal-frames -2
 check "experiment planes: negative structure noise" 2 "$D" -- experiment planes --out "$D" --q-structure -1
+check "experiment two-object: references in the state" 2 "$D" -- experiment two-object --out "$D" --reference state
 check "track --patches: radius 1" 2 "$V4" -- track "$TMP/gap/g%d.pgm" --patches --patch-radius 1 --out "$V4" --quiet
 check "estimate: missing patches file" 2 "$V4" -- estimate --patches "$T4/none.csv" --out "$V4" --quiet
 check "estimate: tracks and patches" 2 "$V4" -- estimate --patches "$T4/four.csv" --tracks "$T4/four.csv" --out "$V4" --quiet

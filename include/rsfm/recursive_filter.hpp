@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <stdexcept>
 #include <string_view>
 #include <vector>
 
@@ -33,14 +34,27 @@ enum class ReferenceModel {
   /// the plane models. Approximate: each observation informs both the state and its reference,
   /// and the cross-covariance is not kept (Beardsley et al.'s per-point remedy, seed ref. [2], in spirit).
   Refine,
+  /// The reference positions join the state: x = [model state | u_1, v_1, ..., u_N, v_N], each
+  /// starting at its measured position with variance reference_sigma^2, and every observation's
+  /// Jacobian gets its dh_i/d(u, v)^1 block there (R = sigma^2 I). Exact to first order, as the
+  /// batch's joint estimate; the price is a 2N-larger state, O(N^3) per frame. The points must
+  /// all exist when the filter is built (the appended block follows the model's state).
+  State,
 };
 inline std::string_view toString(ReferenceModel r) {
-  return r == ReferenceModel::Exact ? "exact" : r == ReferenceModel::Inflate ? "inflate" : "refine";
+  switch (r) {
+    case ReferenceModel::Exact: return "exact";
+    case ReferenceModel::Inflate: return "inflate";
+    case ReferenceModel::Refine: return "refine";
+    case ReferenceModel::State: return "state";
+  }
+  return "?";
 }
 inline bool parseReferenceModel(std::string_view s, ReferenceModel* out) {
   if (s == "exact") *out = ReferenceModel::Exact;
   else if (s == "inflate") *out = ReferenceModel::Inflate;
   else if (s == "refine") *out = ReferenceModel::Refine;
+  else if (s == "state") *out = ReferenceModel::State;
   else return false;
   return true;
 }
@@ -119,7 +133,17 @@ class RecursiveFilter {
   RecursiveFilter(Model model, Ekf ekf, FilterOptions options)
       : model_(std::move(model)), ekf_(std::move(ekf)), opt_(options) {
     opt_.update.min_blocks = std::max(opt_.update.min_blocks, Model::kMinPoints);
+    if (opt_.reference == ReferenceModel::State) {
+      const int N = model_.numPoints();
+      ref_index_ = ekf_.size();
+      Eigen::VectorXd r(2 * N);
+      for (int i = 0; i < N; ++i) r.template segment<2>(2 * i) = model_.reference(i);
+      const double s2 = referenceSigma() * referenceSigma();
+      ekf_.augment(r, Eigen::MatrixXd::Identity(2 * N, 2 * N) * s2, Eigen::MatrixXd::Zero(2 * N, ref_index_));
+    }
   }
+  /// ReferenceModel::State: index of point 0's u^1 in the state (-1 otherwise).
+  int referenceIndex() const { return ref_index_; }
 
   FrameStats step(const std::vector<Observation>& obs) {
     FrameStats fs;
@@ -128,14 +152,15 @@ class RecursiveFilter {
     ekf_.predict(q);
     ensureReferenceCovariances();
     const std::vector<Eigen::Matrix2d>* rc =
-        opt_.reference == ReferenceModel::Exact ? nullptr : &ref_cov_;
+        opt_.reference == ReferenceModel::Exact || opt_.reference == ReferenceModel::State ? nullptr : &ref_cov_;
     ++steps_;
     const bool warm = steps_ <= opt_.warmup_frames;
     const int iterations = warm ? std::max(opt_.iterations, opt_.warmup_iterations) : opt_.iterations;
+    if (ref_index_ >= 0 && 2 * model_.numPoints() != ekf_.size() - ref_index_)
+      throw std::logic_error("reference positions in the state: points cannot be added after the filter is built");
     MeasurementBatch batch;
     std::vector<int> used;
-    model_.linearize(ekf_.x(), Rg_, obs, opt_.sigma_uv, rc, &batch, &fs.invalid,
-                     &fs.first_problem, &used);
+    linearize(ekf_.x(), obs, rc, &batch, &fs.invalid, &fs.first_problem, &used);
     const Eigen::VectorXd x_prior = ekf_.x();
     const Eigen::MatrixXd P_prior = ekf_.P();
     fs.iterations = 1;
@@ -148,12 +173,14 @@ class RecursiveFilter {
       // The update moved omega out of dq's domain (|omega| >= 2): roll it back and report.
       ekf_.mutableX() = x_prior;
       ekf_.mutableP() = P_prior;
+      syncReferences(x_prior);
       fs.update.applied = false;
       fs.health |= kInvalidRotation;
       return fs;
     }
     if (opt_.reference == ReferenceModel::Refine && fs.update.applied && fs.health == kHealthy)
       refineReferences(obs, used, fs.update.gated_mask);
+    syncReferences(ekf_.x());
     fs.used = used;
     // R^k = R(dq(omega)) R^{k-1} (seed appendix).
     Rg_ = incrementalRotation(omega) * Rg_;
@@ -181,6 +208,27 @@ class RecursiveFilter {
   double referenceSigma() const {
     return opt_.reference_sigma >= 0.0 ? opt_.reference_sigma : opt_.sigma_uv;
   }
+  /// ReferenceModel::State: the model's reference positions from the state x.
+  void syncReferences(const Eigen::VectorXd& x) {
+    if (ref_index_ < 0) return;
+    for (int i = 0; i < model_.numPoints(); ++i) model_.setReference(i, x.template segment<2>(ref_index_ + 2 * i));
+  }
+  /// The model's linearization at x; with the references in the state, at x's references, with
+  /// each block's dh/d(u, v)^1 in their columns.
+  void linearize(const Eigen::VectorXd& x, const std::vector<Observation>& obs, const std::vector<Eigen::Matrix2d>* rc,
+                 MeasurementBatch* batch, int* invalid, MeasureStatus* problem, std::vector<int>* used) {
+    syncReferences(x);
+    model_.linearize(x, Rg_, obs, opt_.sigma_uv, rc, batch, invalid, problem, used);
+    if (ref_index_ < 0) return;
+    const MotionContext m = MotionContext::fromState(x, Rg_);
+    for (size_t b = 0; b < used->size(); ++b) {
+      const int id = obs[(*used)[b]].id;
+      Eigen::Vector2d h;
+      Eigen::Matrix2d Hu;
+      if (model_.measure(m, x, id, &h, nullptr, nullptr, &Hu) == MeasureStatus::Ok)
+        batch->H.template block<2, 2>(2 * static_cast<int>(b), ref_index_ + 2 * id) = Hu;
+    }
+  }
   void ensureReferenceCovariances() {
     const double s2 = referenceSigma() * referenceSigma();
     while (static_cast<int>(ref_cov_.size()) < model_.numPoints())
@@ -205,7 +253,7 @@ class RecursiveFilter {
       std::vector<int> u;
       int inv = 0;
       MeasureStatus pr = MeasureStatus::Ok;
-      model_.linearize(x, Rg_, obs, opt_.sigma_uv, rc, &b, &inv, &pr, &u);
+      linearize(x, obs, rc, &b, &inv, &pr, &u);
       if (inv > invalid0 || !b.residual.allFinite()) return false;
       double c = 0.0;
       for (size_t k = 0; k < u.size(); ++k) {
@@ -225,7 +273,7 @@ class RecursiveFilter {
       std::vector<int> used_i;
       int invalid = 0;
       MeasureStatus problem = MeasureStatus::Ok;
-      model_.linearize(x_lin, Rg_, obs, opt_.sigma_uv, rc, &relin, &invalid, &problem, &used_i);
+      linearize(x_lin, obs, rc, &relin, &invalid, &problem, &used_i);
       if (invalid > invalid0) return false;
       relin.residual += relin.H * (x_lin - x_prior);
       ekf_.mutableX() = x_prior;
@@ -267,6 +315,7 @@ class RecursiveFilter {
   FilterOptions opt_;
   Eigen::Matrix3d Rg_ = Eigen::Matrix3d::Identity();
   std::vector<Eigen::Matrix2d> ref_cov_;
+  int ref_index_ = -1;  ///< ReferenceModel::State: first reference column (-1: not in the state)
   int steps_ = 0;  ///< steps taken (warm-up)
 };
 

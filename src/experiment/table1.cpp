@@ -420,7 +420,7 @@ std::string validateTable1Options(const Table1Options& o) {
   if (o.iterations < 1) return "--iterations must be at least 1";
   if (o.iekf_iterations < 0) return "--iekf-iterations must be non-negative";
   if (ReferenceModel r; !parseReferenceModel(o.reference_model, &r))
-    return "--reference must be 'exact', 'inflate' or 'refine'";
+    return "--reference must be 'exact', 'inflate', 'refine' or 'state'";
   return {};
 }
 
