@@ -1,6 +1,8 @@
 // Box scene geometry and the multi-plane experiment's plumbing (issue 3, in progress).
 #include <gtest/gtest.h>
 
+#include <string>
+
 #include "rsfm/experiment/planes.hpp"
 #include "rsfm/geometry.hpp"
 #include "rsfm/rotation.hpp"
@@ -85,6 +87,26 @@ TEST(PlanesExperiment, RowsForEveryMethodAndBatchRatio) {
   }
 }
 
+/// A quick run of the box experiment: `trials` trials at one noise level, no batch and no
+/// iterated-filter row.
+PlanesOptions quickPlanes(int trials, double noise_px) {
+  PlanesOptions o;
+  o.trials = trials;
+  o.noise_px = {noise_px};
+  o.batch = false;
+  o.iekf_iterations = 0;
+  o.threads = 2;
+  return o;
+}
+
+/// The row of `method`; a test failure (and an empty row) when there is none.
+PlanesRow methodRow(const PlanesResult& r, const std::string& method) {
+  for (const auto& row : r.rows)
+    if (row.method == method) return row;
+  ADD_FAILURE() << "no row for " << method;
+  return PlanesRow{};
+}
+
 TEST(PlanesExperiment, WarmupIterationsFixTheNoiseFreeStart) {
   // Noise-free tracks (filtered assuming 0.1 px), 8 trials, seed 1: with 90 accurate points the
   // first plain EKF updates collapse P around the poor linearization at beta0 = 0.5, and the
@@ -92,23 +114,13 @@ TEST(PlanesExperiment, WarmupIterationsFixTheNoiseFreeStart) {
   // deg). Iterated updates in the first 5 frames (FilterOptions::warmup_frames) remove it
   // (rms_t 0.0016, normal 0.042 deg, face angle 0.058 deg). One pass, with the former process
   // noise (1e-3, 1e-4): a second pass from the first pass's planes hides the start problem.
-  PlanesOptions o;
+  PlanesOptions o = quickPlanes(8, 0.0);
   o.passes = 1;
   o.q_translation = 1e-3;
   o.q_omega = 1e-4;
-  o.trials = 8;
-  o.noise_px = {0.0};
-  o.batch = false;
-  o.iekf_iterations = 0;
-  o.threads = 2;
-  auto rigid = [](const PlanesResult& r) {
-    for (const auto& row : r.rows)
-      if (row.method == "planes-rigid") return row;
-    return PlanesRow{};
-  };
-  const PlanesRow plain = rigid(runPlanes(o));
+  const PlanesRow plain = methodRow(runPlanes(o), "planes-rigid");
   o.warmup_frames = 5;
-  const PlanesRow warm = rigid(runPlanes(o));
+  const PlanesRow warm = methodRow(runPlanes(o), "planes-rigid");
   ASSERT_EQ(plain.failed, 0);
   ASSERT_EQ(warm.failed, 0);
   EXPECT_LT(warm.rms_t, 0.004);
@@ -122,20 +134,10 @@ TEST(PlanesExperiment, ReferencePositionsInTheStateSharpenTheFaces) {
   // ReferenceModel::State (the 2N reference coordinates in the state, as the batch estimates
   // them) against the default Refine, 6 trials, seed 1, 2 px, no batch: measured face angle error
   // 0.30 vs 0.76 deg, beta 1.8 vs 2.5 %, rms_t 0.033 vs 0.035.
-  PlanesOptions o;
-  o.trials = 6;
-  o.noise_px = {2.0};
-  o.batch = false;
-  o.iekf_iterations = 0;
-  o.threads = 2;
-  auto rigid = [](const PlanesResult& r) {
-    for (const auto& row : r.rows)
-      if (row.method == "planes-rigid") return row;
-    return PlanesRow{};
-  };
-  const PlanesRow refine = rigid(runPlanes(o));
+  PlanesOptions o = quickPlanes(6, 2.0);
+  const PlanesRow refine = methodRow(runPlanes(o), "planes-rigid");
   o.reference_model = "state";
-  const PlanesRow state = rigid(runPlanes(o));
+  const PlanesRow state = methodRow(runPlanes(o), "planes-rigid");
   ASSERT_EQ(refine.failed, 0);
   ASSERT_EQ(state.failed, 0);
   EXPECT_LT(state.face_angle_err_deg, 0.45);
@@ -148,24 +150,12 @@ TEST(PlanesExperiment, DefaultSceneMeetsTheTwoPixelTargetsOnAFewTrials) {
   // The issue's 2 px targets on the default box scene (Table 1's -0.5 deg/frame orbit), 6 trials,
   // seed 1, no batch, default options (2 passes, q 3e-2 / 1e-3): face angle within 1 deg of 90,
   // beta within 5 %, and planes-rigid's rms_t below plane-per-face's.
-  PlanesOptions o;
-  o.trials = 6;
-  o.noise_px = {2.0};
-  o.batch = false;
-  o.iekf_iterations = 0;
-  o.threads = 2;
-  const PlanesResult r = runPlanes(o);
-  const PlanesRow* rigid = nullptr;
-  const PlanesRow* per_face = nullptr;
-  for (const auto& row : r.rows) {
-    if (row.method == "planes-rigid") rigid = &row;
-    if (row.method == "plane-per-face") per_face = &row;
-  }
-  ASSERT_TRUE(rigid && per_face);
-  ASSERT_EQ(rigid->failed, 0);
-  EXPECT_LT(rigid->face_angle_err_deg, 1.0);
-  EXPECT_LT(rigid->beta_err_pct, 5.0);
-  EXPECT_LT(rigid->rms_t, per_face->rms_t);
+  const PlanesResult r = runPlanes(quickPlanes(6, 2.0));
+  const PlanesRow rigid = methodRow(r, "planes-rigid"), per_face = methodRow(r, "plane-per-face");
+  ASSERT_EQ(rigid.failed, 0);
+  EXPECT_LT(rigid.face_angle_err_deg, 1.0);
+  EXPECT_LT(rigid.beta_err_pct, 5.0);
+  EXPECT_LT(rigid.rms_t, per_face.rms_t);
 }
 
 TEST(PlanesExperiment, RejectsBadOptions) {
