@@ -218,16 +218,7 @@ class RecursiveFilter {
   void linearize(const Eigen::VectorXd& x, const std::vector<Observation>& obs, const std::vector<Eigen::Matrix2d>* rc,
                  MeasurementBatch* batch, int* invalid, MeasureStatus* problem, std::vector<int>* used) {
     syncReferences(x);
-    model_.linearize(x, Rg_, obs, opt_.sigma_uv, rc, batch, invalid, problem, used);
-    if (ref_index_ < 0) return;
-    const MotionContext m = MotionContext::fromState(x, Rg_);
-    for (size_t b = 0; b < used->size(); ++b) {
-      const int id = obs[(*used)[b]].id;
-      Eigen::Vector2d h;
-      Eigen::Matrix2d Hu;
-      if (model_.measure(m, x, id, &h, nullptr, nullptr, &Hu) == MeasureStatus::Ok)
-        batch->H.template block<2, 2>(2 * static_cast<int>(b), ref_index_ + 2 * id) = Hu;
-    }
+    model_.linearize(x, Rg_, obs, opt_.sigma_uv, rc, batch, invalid, problem, used, ref_index_);
   }
   void ensureReferenceCovariances() {
     const double s2 = referenceSigma() * referenceSigma();

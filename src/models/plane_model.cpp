@@ -99,8 +99,8 @@ void PlaneModel::linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
                            const std::vector<Observation>& obs, double sigma,
                            const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
                            int* invalid, MeasureStatus* first_problem,
-                           std::vector<int>* used) const {
-  linearizeObservations(*this, x, Rg, obs, sigma, ref_cov, batch, invalid, first_problem, used);
+                           std::vector<int>* used, int reference_index) const {
+  linearizeObservations(*this, x, Rg, obs, sigma, ref_cov, batch, invalid, first_problem, used, reference_index);
 }
 
 }  // namespace rsfm

@@ -15,14 +15,17 @@
 namespace rsfm {
 
 /// Fills `batch` with residual z - h(x), Jacobian and R = sigma^2 I (+ Hu C_i Hu^T with
-/// `ref_cov`, C_i the covariance of point i's reference position). Observations whose
-/// prediction fails are left out and counted in *invalid (the first reason in *first_problem);
-/// `used` (optional) receives the observation index of each block.
+/// `ref_cov`, C_i the covariance of point i's reference position). With `reference_index` >= 0
+/// the reference positions are part of x (ReferenceModel::State): point i's Hu = dh/d(u, v)^1
+/// goes to columns reference_index + 2i. Observations whose prediction fails are left out and
+/// counted in *invalid (the first reason in *first_problem); `used` (optional) receives the
+/// observation index of each block.
 template <class Model>
 void linearizeObservations(const Model& model, const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
                            const std::vector<Observation>& obs, double sigma,
                            const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
-                           int* invalid, MeasureStatus* first_problem, std::vector<int>* used) {
+                           int* invalid, MeasureStatus* first_problem, std::vector<int>* used,
+                           int reference_index = -1) {
   constexpr int S = Model::kStructurePerPoint;
   const MotionContext m = MotionContext::fromState(x, Rg);
   batch->resize(static_cast<int>(obs.size()), static_cast<int>(x.size()), 2);
@@ -38,7 +41,7 @@ void linearizeObservations(const Model& model, const Eigen::VectorXd& x, const E
     Eigen::Matrix2d Hu;
     const MeasureStatus s = o.id < 0 || o.id >= model.numPoints()
                                 ? MeasureStatus::UnknownFeature
-                                : model.measure(m, x, o.id, &h, &Hm, &Hs, ref_cov ? &Hu : nullptr);
+                                : model.measure(m, x, o.id, &h, &Hm, &Hs, ref_cov || reference_index >= 0 ? &Hu : nullptr);
     if (s != MeasureStatus::Ok || !o.uv.allFinite()) {
       if (*invalid == 0) *first_problem = s == MeasureStatus::Ok ? MeasureStatus::NonFinite : s;
       ++*invalid;
@@ -47,6 +50,7 @@ void linearizeObservations(const Model& model, const Eigen::VectorXd& x, const E
     batch->residual.template segment<2>(2 * b) = o.uv - h;
     batch->H.template block<2, 7>(2 * b, 0) = Hm;
     batch->H.template block<2, S>(2 * b, model.structureIndex(o.id)) = Hs;
+    if (reference_index >= 0) batch->H.template block<2, 2>(2 * b, reference_index + 2 * o.id) = Hu;
     Eigen::Matrix2d R = Eigen::Matrix2d::Identity() * sigma * sigma;
     if (ref_cov) R += Hu * (*ref_cov)[o.id] * Hu.transpose();
     batch->R.template block<2, 2>(2 * b, 0) = R;

@@ -53,7 +53,8 @@ class PointModel {
   void linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
                  const std::vector<Observation>& obs, double sigma,
                  const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
-                 int* invalid, MeasureStatus* first_problem, std::vector<int>* used = nullptr) const;
+                 int* invalid, MeasureStatus* first_problem, std::vector<int>* used = nullptr,
+                 int reference_index = -1) const;
 
  private:
   std::vector<Eigen::Vector2d> ref_;
