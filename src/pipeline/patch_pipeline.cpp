@@ -98,7 +98,12 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
     if (usable(p.id)) ids.push_back(p.id), c0.push_back(norm(p.px));
   const int K = static_cast<int>(ids.size());
   std::map<int, FusedMap> maps;  // per patch id: fused cumulative map (PatchPipelineOptions::fused_maps)
+  // Per patch id: the inverse of its map where it enters the filter. Maps in the state start at
+  // the identity there; a patch whose template frame lies before the tracks' first frame is
+  // measured relative to its entry map.
+  std::map<int, Eigen::Matrix2d> entry_inv;
   auto startMap = [&](const PatchObservation& p) {
+    entry_inv[p.id] = p.A.inverse();
     FusedMap m;
     m.A = p.A;
     // In its first frame a patch's map is the identity by definition.
@@ -108,12 +113,6 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
   };
   for (const auto& p : tracks.frames[0])
     if (usable(p.id)) startMap(p);
-  // Maps in the state start at the identity where a patch enters the filter; a patch whose
-  // template frame lies before the tracks' first frame is measured relative to its entry map.
-  std::map<int, Eigen::Matrix2d> entry_inv;
-  auto enter = [&](const PatchObservation& p) { entry_inv[p.id] = p.A.inverse(); };
-  for (const auto& p : tracks.frames[0])
-    if (usable(p.id)) enter(p);
   if (K < PatchModel::kMinPatches)
     throw std::invalid_argument("only " + std::to_string(K) + " patches (seen in at least " +
                                 std::to_string(o.min_patch_frames) + " frames) in the first frame; the patch filter needs " +
@@ -294,7 +293,6 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
       f.addPatch(norm(p.px), Eigen::Vector3d(0.0, 0.0, gmed), Pn);
       ids.push_back(p.id);
       startMap(p);
-      enter(p);
       ++res.entered;
       ++res.joined;
     }
