@@ -142,8 +142,6 @@ class RecursiveFilter {
       ekf_.augment(r, Eigen::MatrixXd::Identity(2 * N, 2 * N) * s2, Eigen::MatrixXd::Zero(2 * N, ref_index_));
     }
   }
-  /// ReferenceModel::State: index of point 0's u^1 in the state (-1 otherwise).
-  int referenceIndex() const { return ref_index_; }
 
   FrameStats step(const std::vector<Observation>& obs) {
     FrameStats fs;
