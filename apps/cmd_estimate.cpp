@@ -36,6 +36,7 @@ struct EstimateCli {
   std::string reference = "refine";
   double gate = 0.999;
   int iterations = 1;
+  int iekf_after = 10;
   bool plots = true;
   bool init = true;
   double normal_sd0 = -1.0, beta_sd0 = -1.0;  // < 0: automatic
@@ -78,6 +79,8 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--reference", e->reference, "reference positions: exact | inflate | refine")->capture_default_str();
   a->add_option("--gate", e->gate, "chi-square gate probability per point (0: off)")->capture_default_str();
   a->add_option("--iterations", e->iterations, "update iterations (1: EKF, >1: iterated EKF)")->capture_default_str();
+  a->add_option("--iekf-after", e->iekf_after, "with --iterations > 1: first frames updated by the plain EKF (docs/filter.md)")
+      ->capture_default_str();
   a->add_option("--passes", e->filter.passes, "passes over the sequence (>1: restart from the previous pass's planes and focal)")
       ->capture_default_str();
   a->add_option("--max-planes", e->finder.max_planes, "planes kept at most")->capture_default_str();
@@ -128,6 +131,7 @@ std::string finishEstimateOptions(EstimateCli* e) {
   if (!(e->q_trans >= 0) || !(e->q_omega >= 0) || !(e->q_beta >= 0)) return "process variances must be >= 0";
   if (!(e->gate >= 0 && e->gate < 1)) return "--gate must be in [0, 1)";
   if (e->iterations < 1) return "--iterations must be >= 1";
+  if (e->iekf_after < 0) return "--iekf-after must be >= 0";
   if (e->filter.passes < 1 || e->filter.passes > 10) return "--passes must be in 1..10";
   if (e->finder.max_planes < 1) return "--max-planes must be >= 1";
   if (e->finder.min_plane_tracks < 5) return "--min-plane-tracks must be >= 5";
@@ -136,6 +140,7 @@ std::string finishEstimateOptions(EstimateCli* e) {
   e->filter.filter.update.gate_probability = e->gate;
   e->patch.gate_probability = e->gate;
   e->filter.filter.iterations = e->iterations;
+  e->filter.filter.iterate_after_frames = e->iekf_after;
   if (!e->plane_rois.empty()) {
     std::stringstream ss(e->plane_rois);
     std::string poly;

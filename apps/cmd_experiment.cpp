@@ -65,6 +65,8 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   t1->add_option("--iekf-iterations", o.iekf_iterations,
                  "iterations of the plane-iekf row (<= 1: no such row)")
       ->capture_default_str();
+  t1->add_option("--iekf-after", o.iekf_after, "iterated updates: first frames updated by the plain EKF (docs/filter.md)")
+      ->capture_default_str();
   t1->add_option("--batch", o.batch, "add the batch (Ceres, maximum-likelihood) row (true/false)")
       ->capture_default_str();
   t1->add_option("--reference", o.reference_model,
@@ -121,6 +123,8 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   pl->add_option("--passes", po.passes, "passes of the plane filters (1: recursive; >1: restart from the last pass's planes and beta)")
       ->capture_default_str();
   pl->add_option("--iekf-iterations", po.iekf_iterations, "iterations of planes-rigid-iekf (<= 1: no row)")
+      ->capture_default_str();
+  pl->add_option("--iekf-after", po.iekf_after, "iterated rows: first frames updated by the plain EKF (docs/filter.md)")
       ->capture_default_str();
   pl->add_option("--batch", po.batch, "add the batch (Ceres) row (true/false)")->capture_default_str();
   pl->add_option("--beta-min", po.beta_min, "lower bound on beta, by estimate projection (0: none)")

@@ -164,6 +164,8 @@ check "two-object: unknown option" 2 "$D3" -- experiment two-object --out "$D3" 
 check "two-object: output is a file" 2 "" -- experiment two-object --out "$TMP/afile"
 check "planes: beta bound above beta0" 2 "$D2" -- experiment planes --out "$D2" --beta-min 0.6
 check "planes: negative warm-up" 2 "$D2" -- experiment planes --out "$D2" --warmup-frames -1
+check "planes: negative iekf-after" 2 "$D2" -- experiment planes --out "$D2" --iekf-after -1
+check "table1: negative iekf-after" 2 "$D2" -- experiment table1 --out "$D2" --iekf-after -2
 
 
 # track / estimate / run (docs/tracks.md, docs/estimate.md): bad videos, frames and track files.
@@ -214,6 +216,7 @@ check "estimate: fewer than 5 points (manual planes)" 2 "$V4" -- estimate --trac
   --plane-roi "0,0,300,0,300,250,0,250;350,250,640,250,640,480,350,480" --min-plane-tracks 5
 check "estimate: bad model" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --model cubes --quiet
 check "estimate: negative focal" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --focal-px -3 --quiet
+check "estimate: negative iekf-after" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --iterations 3 --iekf-after -1 --quiet
 
 # Affine patches (docs/tracks.md "patches.csv", docs/patches.md).
 check "experiment patches: negative noise" 2 "$D" -- experiment patches --out "$D" --plane-noise 0.1,-0.2

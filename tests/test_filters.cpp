@@ -23,6 +23,21 @@ struct NoiselessResult {
   double nz_final;
 };
 
+/// The plane filter on a Table 1 scene from the paper's start: beta0 = 0.5, N0 = (1.5, 0.5, 2)
+/// with N_Z the gauge, variances 0.1.
+RecursiveFilter<PlaneModel> table1PlaneFilter(const Table1Scene& scene, const FilterOptions& fo) {
+  Eigen::VectorXd x0 = Eigen::VectorXd::Zero(10);
+  x0[idx::kBeta] = 0.5;
+  x0.tail<3>() << 1.5, 0.5, 2.0;
+  Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(10, 10);
+  P0(6, 6) = 0.1;
+  P0(7, 7) = P0(8, 8) = 0.1;
+  std::vector<bool> fixed(10, false);
+  fixed[9] = true;
+  const int Np = static_cast<int>(scene.points.size());
+  return RecursiveFilter<PlaneModel>(PlaneModel(scene.uv[0], std::vector<int>(Np, 0)), Ekf(x0, P0, fixed), fo);
+}
+
 NoiselessResult runNoiselessPlane(RotationReading reading, int iterations = 1) {
   Table1SceneOptions so;
   std::mt19937_64 rng(42);
@@ -33,15 +48,7 @@ NoiselessResult runNoiselessPlane(RotationReading reading, int iterations = 1) {
   fo.sigma_uv = 0.1 / so.scale_px;  // the filter assumes 0.1 px; the data are exact
   fo.q_motion << 3e-4, 3e-4, 3e-4, 1e-4, 1e-4, 1e-4, 0.0;
   fo.iterations = iterations;
-  Eigen::VectorXd x0 = Eigen::VectorXd::Zero(10);
-  x0[idx::kBeta] = 0.5;
-  x0.tail<3>() << 1.5, 0.5, 2.0;
-  Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(10, 10);
-  P0(6, 6) = 0.1;
-  P0(7, 7) = P0(8, 8) = 0.1;
-  std::vector<bool> fixed(10, false);
-  fixed[9] = true;
-  RecursiveFilter<PlaneModel> f(PlaneModel(scene.uv[0], std::vector<int>(Np, 0)), Ekf(x0, P0, fixed), fo);
+  RecursiveFilter<PlaneModel> f = table1PlaneFilter(scene, fo);
   for (int k = 1; k <= so.frames; ++k) {
     std::vector<Observation> obs;
     for (int i = 0; i < Np; ++i) obs.push_back({i, scene.uv[k][i]});
@@ -55,6 +62,31 @@ NoiselessResult runNoiselessPlane(RotationReading reading, int iterations = 1) {
   r.rot_err_deg = rotationAngle(f.rotation(), scene.R.back()) / kDeg;
   r.nz_final = f.ekf().x()[9];
   return r;
+}
+
+TEST(PlaneFilter, IterationScheduleWarmUpThenPlainThenIterated) {
+  // FilterOptions::warmup_frames iterate the first frames, iterate_after_frames then holds the
+  // plain update until its frame count, and later frames use `iterations`.
+  Table1SceneOptions so;
+  std::mt19937_64 rng(42);
+  const Table1Scene scene = makeTable1Scene(so, rng);
+  const int Np = static_cast<int>(scene.points.size());
+  FilterOptions fo;
+  fo.sigma_uv = 0.1 / so.scale_px;
+  fo.iterations = 4;
+  fo.warmup_frames = 2;
+  fo.iterate_after_frames = 6;
+  RecursiveFilter<PlaneModel> f = table1PlaneFilter(scene, fo);
+  for (int k = 1; k <= 10; ++k) {
+    std::vector<Observation> obs;
+    for (int i = 0; i < Np; ++i) obs.push_back({i, scene.uv[k][i]});
+    const FrameStats fs = f.step(obs);
+    ASSERT_EQ(fs.health, kHealthy) << "frame " << k;
+    if (k <= 2 || k > 6)
+      EXPECT_GT(fs.iterations, 1) << "frame " << k;
+    else
+      EXPECT_EQ(fs.iterations, 1) << "frame " << k;
+  }
 }
 
 TEST(PlaneFilter, BetaBoundProjectsTheEstimateOntoTheBound) {

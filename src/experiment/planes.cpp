@@ -70,6 +70,7 @@ FilterOptions filterOptions(const PlanesOptions& o, double noise_px) {
   parseReferenceModel(o.reference_model, &fo.reference);
   fo.beta_min = o.beta_min;
   fo.warmup_frames = o.warmup_frames;
+  fo.iterate_after_frames = o.iekf_after;
   return fo;
 }
 
@@ -386,6 +387,7 @@ std::string validatePlanesOptions(const PlanesOptions& o) {
   if (ReferenceModel r; !parseReferenceModel(o.reference_model, &r))
     return "--reference must be 'exact', 'inflate', 'refine' or 'state'";
   if (o.iekf_iterations < 0) return "--iekf-iterations must be non-negative";
+  if (o.iekf_after < 0) return "--iekf-after must be non-negative";
   if (!(o.beta_min >= 0.0) || !(o.beta_min < o.beta0)) return "--beta-min must be non-negative and below --beta0";
   if (o.warmup_frames < 0) return "--warmup-frames must be non-negative";
   if (o.threads < 0) return "--threads must be non-negative";

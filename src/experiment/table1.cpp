@@ -227,6 +227,7 @@ Job runJob(const Table1Options& o, const Table1Scene& scene, double noise_px, st
       o.q_omega, o.q_beta;
   fo.q_structure = o.q_structure;
   fo.iterations = o.iterations;
+  fo.iterate_after_frames = o.iekf_after;
   parseReferenceModel(o.reference_model, &fo.reference);
   // The reference frame carries the same noise as the others (or none).
   fo.reference_sigma = o.reference_noise ? fo.sigma_uv / std::sqrt(o.r_scale) : 0.0;
@@ -419,6 +420,7 @@ std::string validateTable1Options(const Table1Options& o) {
   if (o.threads < 0) return "--threads must be non-negative";
   if (o.iterations < 1) return "--iterations must be at least 1";
   if (o.iekf_iterations < 0) return "--iekf-iterations must be non-negative";
+  if (o.iekf_after < 0) return "--iekf-after must be non-negative";
   if (ReferenceModel r; !parseReferenceModel(o.reference_model, &r))
     return "--reference must be 'exact', 'inflate', 'refine' or 'state'";
   return {};

@@ -63,9 +63,9 @@ std::string planesMarkdown(const PlanesResult& r, const std::string& command_lin
                    sc.frames, sc.points_per_face, sc.scale_px, sc.image_px);
   s += fmt::format("| prior | beta0 {} (var {}); planes: truth + N(0, ({} |N|)^2) on each free component, the same variance; gauge: each plane's largest component at its true value (planes-rigid, batch: plane 0's only) |\n",
                    o.beta0, o.beta_var0, o.n_rel);
-  s += fmt::format("| filters | reading {}, q_trans {:g}, q_omega {:g}, q_beta {:g}, q_structure {:g}, gate {:g}, reference {}, iekf iterations {}, beta_min {:g}, warm-up frames {} |\n",
+  s += fmt::format("| filters | reading {}, q_trans {:g}, q_omega {:g}, q_beta {:g}, q_structure {:g}, gate {:g}, reference {}, iekf iterations {} (plain EKF in the first {} frames), beta_min {:g}, warm-up frames {} |\n",
                    toString(o.reading), o.q_translation, o.q_omega, o.q_beta, o.q_structure, o.gate_probability, o.reference_model,
-                   o.iekf_iterations, o.beta_min, o.warmup_frames);
+                   o.iekf_iterations, o.iekf_after, o.beta_min, o.warmup_frames);
   s += "| point | A&P on all points; initial depths from each face's initial plane; gauge: the point nearest the image centre at its true depth; faces fitted to its 3-D points |\n";
   s += "| batch | Ceres, all frames, per-point reference positions estimated, started from planes-rigid |\n";
   return s;

@@ -154,6 +154,7 @@ std::string table1Markdown(const Table1Result& r, const std::string& command_lin
   opt("--r-scale", fmt::format("{:g}", o.r_scale), "R = r-scale x (noise/s)^2: measurement variance used by the filters");
   opt("--iterations", std::to_string(o.iterations), "measurement-update iterations (1 = EKF, > 1 = iterated EKF)");
   opt("--iekf-iterations", std::to_string(o.iekf_iterations), "iterations of the plane-iekf row (<= 1: no row)");
+  opt("--iekf-after", std::to_string(o.iekf_after), "iterated updates: the first frames use the plain EKF");
   opt("--batch", o.batch ? "true" : "false", "batch (Ceres, maximum-likelihood) row");
   opt("--reference", o.reference_model, "first-frame positions: exact (as published: taken as exact), inflate (their noise added to R through dh/du1), refine (and re-estimated per point from later frames)");
   opt("--gate", fmt::format("{:g}", o.gate_probability), "per-point chi-square gate probability (0 disables)");

@@ -48,6 +48,9 @@ struct PlanesOptions {
   double gate_probability = 0.999;
   std::string reference_model = "refine";  ///< exact | inflate | refine (docs/filter.md)
   int iekf_iterations = 5;                  ///< planes-rigid-iekf
+  /// FilterOptions::iterate_after_frames of the iterated rows: the first frames use the plain
+  /// update, since one frame's MAP there fits the noise in beta (docs/filter.md).
+  int iekf_after = 10;
   /// FilterOptions::beta_min of every filter: 0.1 (f <= 10 normalized units, a field of view of
   /// at least 11 deg) keeps beta away from the t_Z = (t_Z beta) / beta pole (docs/planes.md).
   double beta_min = 0.1;

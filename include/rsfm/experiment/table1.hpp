@@ -37,6 +37,9 @@ struct Table1Options {
   int iterations = 1;            ///< measurement-update iterations (1 = EKF, > 1 = iterated EKF)
   /// The "plane-iekf" row: the plane filter with this many update iterations (<= 1: no row).
   int iekf_iterations = 5;
+  /// FilterOptions::iterate_after_frames of the iterated rows: the first frames use the plain
+  /// update, since one frame's MAP there fits the noise in beta (docs/filter.md).
+  int iekf_after = 10;
   /// The "batch" row: Ceres bundle adjustment over all frames started from the plane filter,
   /// reference positions estimated (maximum likelihood; include/rsfm/batch/plane_batch.hpp).
   bool batch = true;
