@@ -24,6 +24,11 @@ namespace rsfm::cli {
 
 namespace {
 
+/// Printed when the homography start's focal length is at an end of its grid (PlaneStart::at_grid_end).
+constexpr const char* kGridEndWarning =
+    "the start's focal length is at the end of its grid (0.3-3 x max(width, height)): the homographies do not "
+    "determine it; consider --focal-px or --focal0-px";
+
 struct EstimateCli {
   std::string model = "planes";
   bool patches = false;  ///< --model patches: Calway's patch filter on affine patches
@@ -197,6 +202,7 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
                    start.score);
         for (const auto& n : start.normals) fmt::print(stderr, " ({:.2f}, {:.2f}, {:.2f})", n.x(), n.y(), n.z());
         fmt::print(stderr, "\n");
+        if (start.at_grid_end) fmt::print(stderr, "warning: {}\n", kGridEndWarning);
       } else {
         fmt::print(stderr, "start: {}; planes start frontal\n", start.note);
       }
@@ -225,7 +231,7 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
     cands.push_back({{"verdict", vision::toString(c.verdict)}, {"label", c.label}, {"tracks", c.members.size()},
                      {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction}});
   if (start.ok)
-    rep.extra["start"] = {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}};
+    rep.extra["start"] = {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}, {"focal_at_grid_end", start.at_grid_end}};
   rep.extra["plane_finding"] = {{"pair_frame", tracks.first_frame + pf.pair_frame}, {"candidates", cands},
                                 {"manual", !e.finder.rois.empty()}};
   nlohmann::json summary;
@@ -285,11 +291,12 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
     if (start.ok) {
       po.focal0_px = start.focal_px;
       po.beta_sd0 = 0.1;
-      start_json = {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}};
+      start_json = {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}, {"focal_at_grid_end", start.at_grid_end}};
     }
     if (!e.quiet)
       fmt::print(stderr, "start: {}\n",
-                 start.ok ? fmt::format("focal {:.0f} px from homographies of the patch centres", start.focal_px)
+                 start.ok ? fmt::format("focal {:.0f} px from homographies of the patch centres{}", start.focal_px,
+                                        start.at_grid_end ? fmt::format("\nwarning: {}", kGridEndWarning) : "")
                           : start.note + "; focal starts at max(width, height)");
   }
   PatchRunResult res;

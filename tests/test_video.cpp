@@ -279,6 +279,7 @@ TEST(TrackFilter, RecoversFocalAndFaceAnglesFromPixelTracks) {
   const vision::PlaneStart start = vision::planeStart(st.tracks, pf);
   ASSERT_TRUE(start.ok) << start.note;
   EXPECT_NEAR(start.focal_px, 256.0, 0.1 * 256.0);
+  EXPECT_FALSE(start.at_grid_end) << "an interior minimum of the focal grid";
   TrackFilterOptions o;
   o.sigma_px = 0.5;
   o.focal0_px = start.focal_px;

@@ -62,7 +62,9 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
   else
     for (int i = 0; i <= 48; ++i) grid.push_back(W * 0.3 * std::pow(10.0, i / 48.0));  // 0.3 W .. 3 W
   double best = std::numeric_limits<double>::infinity();
-  for (double f : grid) {
+  size_t best_index = 0;
+  for (size_t gi = 0; gi < grid.size(); ++gi) {
+    const double f = grid[gi];
     const cv::Matx33d K(f, 0, tracks.image.cx, 0, f, tracks.image.cy, 0, 0, 1);
     const cv::Matx33d Ki = K.inv();
     std::vector<std::vector<Sol>> s1(m), s2(m);
@@ -105,6 +107,7 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
     rec(0);
     if (bcost < best) {
       best = bcost;
+      best_index = gi;
       out.ok = true;
       out.focal_px = f;
       out.score = bcost;
@@ -120,6 +123,7 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
     }
   }
   if (!out.ok) out.note = "no consistent homography decomposition";
+  out.at_grid_end = out.ok && grid.size() > 1 && (best_index == 0 || best_index + 1 == grid.size());
   return out;
 }
 

@@ -20,6 +20,10 @@ struct PlaneStart {
   std::vector<Eigen::Vector3d> normals;      ///< per accepted plane (label order), reference camera frame
   std::vector<double> distance_ratios;       ///< d_j / d_0
   double score = 0.0;                        ///< disagreement at the best focal length (deg)
+  /// The agreement was best at an end of the focal grid (0.3 .. 3 max(W, H)): no minimum was
+  /// found, so the focal length is not determined by the homographies (it is still returned:
+  /// on the ViSP cube's patch centres, 1152 px, where the KLT tracks give an interior 617 px).
+  bool at_grid_end = false;
   std::string note;                          ///< why not ok
 };
 
