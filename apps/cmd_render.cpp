@@ -20,8 +20,10 @@ void addRenderCommands(CLI::App& app, std::vector<Command>& commands) {
     std::string out;
     bool no_floor = false;
     bool quiet = false;
+    std::vector<double> elevation;  // first, last frame (deg)
   };
   auto st = std::make_shared<BoxCli>();
+  st->elevation = {st->o.elevation0_deg, st->o.elevation1_deg};
   box->add_option("--out", st->out, "output directory")->required();
   box->add_option("--frames", st->o.frames, "number of frames")->capture_default_str();
   box->add_option("--focal-px", st->o.focal_px, "focal length in pixels")->capture_default_str();
@@ -34,11 +36,19 @@ void addRenderCommands(CLI::App& app, std::vector<Command>& commands) {
   box->add_option("--noise", st->o.noise_sigma, "sensor noise standard deviation (8-bit grey levels)")
       ->capture_default_str();
   box->add_option("--orbit-deg", st->o.orbit_deg, "azimuth swept about the box (deg)")->capture_default_str();
+  box->add_option("--elevation", st->elevation, "orbit elevation above the floor at the first and last frame (deg)")
+      ->delimiter(',')
+      ->expected(2)
+      ->capture_default_str();
+  box->add_option("--approach", st->o.approach, "orbit radius at the last frame relative to the first")
+      ->capture_default_str();
   box->add_option("--fps", st->o.fps, "video frame rate")->capture_default_str();
   box->add_flag("--no-floor", st->no_floor, "leave out the floor (box only)");
   box->add_flag("--quiet", st->quiet, "no progress on stderr");
   commands.push_back({box, [st]() -> int {
     st->o.floor = !st->no_floor;
+    st->o.elevation0_deg = st->elevation[0];
+    st->o.elevation1_deg = st->elevation[1];
     if (auto msg = rsfm::render::validate(st->o); !msg.empty()) return fail(kBadInput, msg);
     if (auto msg = rsfm::io::ensureWritableDirectory(st->out); !msg.empty()) return fail(kBadInput, msg);
     const bool quiet = st->quiet;

@@ -85,6 +85,9 @@ R="$TMP/render"
 check "render: one frame" 2 "$R" -- render box --out "$R" --frames 1
 check "render: odd width" 2 "$R" -- render box --out "$R" --width 321
 check "render: NaN focal" 2 "$R" -- render box --out "$R" --focal-px nan
+check "render: elevation out of range" 2 "$R" -- render box --out "$R" --elevation 80,90
+check "render: one elevation" 2 "$R" -- render box --out "$R" --elevation 40
+check "render: approach out of range" 2 "$R" -- render box --out "$R" --approach 0.1
 check "render: missing texture" 2 "$R" -- render box --out "$R" --texture "$TMP/none.png"
 echo "not an image" >"$TMP/bad.png"
 check "render: texture not an image" 2 "$R" -- render box --out "$R" --texture "$TMP/bad.png"

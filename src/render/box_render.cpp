@@ -183,6 +183,10 @@ std::string validate(const BoxRenderOptions& o) {
     return fmt::format("--noise must be in [0, 50] grey levels, got {}", o.noise_sigma);
   if (!std::isfinite(o.orbit_deg) || o.orbit_deg < 0 || o.orbit_deg > 80)
     return fmt::format("--orbit-deg must be in [0, 80], got {}", o.orbit_deg);
+  for (double e : {o.elevation0_deg, o.elevation1_deg})
+    if (!std::isfinite(e) || e < 5 || e > 85) return fmt::format("--elevation values must be in [5, 85] deg, got {}", e);
+  if (!std::isfinite(o.approach) || o.approach < 0.3 || o.approach > 3)
+    return fmt::format("--approach must be in [0.3, 3], got {}", o.approach);
   if (!std::isfinite(o.fps) || o.fps <= 0 || o.fps > 240) return fmt::format("--fps must be in (0, 240], got {}", o.fps);
   if (!o.texture.empty() && o.texture != "procedural") {
     std::error_code ec;
@@ -357,8 +361,9 @@ BoxScene::BoxScene(const BoxRenderOptions& opt, const std::function<void(const s
   for (int k = 0; k < opt.frames; ++k) {
     const double u = opt.frames > 1 ? static_cast<double>(k) / (opt.frames - 1) : 0.0;
     const double az = (45.0 + opt.orbit_deg * (u - 0.5) + 1.0 * std::sin(2 * M_PI * 1.3 * u + ph[0])) * kDeg;
-    const double el = (30.0 + 12.0 * (u - 0.5) + 1.5 * std::sin(2 * M_PI * 0.8 * u + ph[1])) * kDeg;
-    const double r = r0 * (1.0 + 0.08 * std::sin(2 * M_PI * 0.6 * u + ph[2]));
+    const double el =
+        (opt.elevation0_deg + (opt.elevation1_deg - opt.elevation0_deg) * u + 1.5 * std::sin(2 * M_PI * 0.8 * u + ph[1])) * kDeg;
+    const double r = r0 * (1.0 + (opt.approach - 1.0) * u) * (1.0 + 0.08 * std::sin(2 * M_PI * 0.6 * u + ph[2]));
     const double roll = (4.0 * std::sin(2 * M_PI * 0.7 * u + ph[3]) + 1.5 * std::sin(2 * M_PI * 1.9 * u + ph[4])) * kDeg;
     const Vector3d target =
         centre + 0.04 * Vector3d(std::sin(2 * M_PI * 1.1 * u + ph[5]), std::sin(2 * M_PI * 0.9 * u + ph[6]),

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <functional>
+#include <fmt/format.h>
 #include <opencv2/calib3d.hpp>
 
 namespace rsfm::vision {
@@ -42,9 +43,35 @@ std::vector<Sol> solutions(const cv::Matx33d& H, const cv::Matx33d& K, const std
   return out;
 }
 
+/// The first frame k in 1..k2-1 whose motion reaches half of frame k2's, the motion of frame k
+/// being the median displacement (px) of the plane's reference points under its homography H[k].
+/// pair_frame / 2 assumed the motion starts at once; after a still start (the ViSP cube's first
+/// 17 frames) that frame had hardly moved, its decompositions fitted noise, and the focal
+/// length agreed best at the end of the grid (1152 px; 617 px with the still frames cut off).
+int halfMotionFrame(const Tracks& tracks, const FoundPlane& plane, int k2) {
+  std::vector<cv::Vec3d> ref;
+  for (int id : plane.members)
+    if (const TrackPoint* p = tracks.find(0, id)) ref.push_back(cv::Vec3d(p->px.x(), p->px.y(), 1.0));
+  auto motion = [&](int k) {
+    std::vector<double> d;
+    for (const auto& x : ref) {
+      const cv::Vec3d y = plane.H[k] * x;
+      if (std::abs(y[2]) > 1e-12) d.push_back(std::hypot(y[0] / y[2] - x[0], y[1] / y[2] - x[1]));
+    }
+    if (d.empty()) return 0.0;
+    std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
+    return d[d.size() / 2];
+  };
+  if (ref.empty() || static_cast<int>(plane.H.size()) <= k2) return std::max(1, k2 / 2);
+  const double half = 0.5 * motion(k2);
+  for (int k = 1; k < k2; ++k)
+    if (motion(k) >= half) return k;
+  return std::max(1, k2 / 2);
+}
+
 }  // namespace
 
-PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal_px) {
+PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal_px, double max_mean_disagreement_deg) {
   PlaneStart out;
   std::vector<const FoundPlane*> planes;
   for (const auto& c : pf.candidates)
@@ -55,7 +82,8 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
     out.note = "no plane or no motion to decompose";
     return out;
   }
-  const int k2 = pf.pair_frame, k1 = std::max(1, pf.pair_frame / 2);
+  const int k2 = pf.pair_frame;
+  const int k1 = halfMotionFrame(tracks, *planes[0], k2);
   const double W = std::max(tracks.image.width, tracks.image.height);
   std::vector<double> grid;
   if (focal_px > 0) grid.push_back(focal_px);
@@ -124,6 +152,12 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
   }
   if (!out.ok) out.note = "no consistent homography decomposition";
   out.at_grid_end = out.ok && grid.size() > 1 && (best_index == 0 || best_index + 1 == grid.size());
+  if (out.ok && out.score / (m * m) > max_mean_disagreement_deg) {
+    const double score = out.score, f = out.focal_px;
+    out = PlaneStart{};
+    out.note = fmt::format("the homography decompositions disagree by {:.1f} deg at best ({:.0f} px; {:.1f} per term, "
+                           "more than {:g}): no start", score, f, score / (m * m), max_mean_disagreement_deg);
+  }
   return out;
 }
 

@@ -41,9 +41,12 @@ struct PatchPipelineOptions {
   double sigma_affine = 0.008;
   /// Per-frame process variances of the inter-frame translation (t_X, t_Y relative to the start
   /// depth Z0, squared; t_Z beta likewise) and rotation (rad^2): hand-held motion changes from frame
-  /// to frame.
+  /// to frame. q_omega 1e-4 (sd 0.57 deg per frame of change in the inter-frame rotation): with
+  /// 1e-5 (0.18 deg) the filter could not follow the ViSP cube's rotation starting after 17 still
+  /// frames, and the floor patches took the other branch of the planar two-fold ambiguity (floor
+  /// 55 deg off the first view's axis, rotation 13 deg instead of ~35; docs/patches.md).
   double q_trans_rel = 0.003;
-  double q_omega = 1e-5;
+  double q_omega = 1e-4;
   int anneal_frames = 30;
   double anneal_factor = 100.0;
   PatchCentres centres = PatchCentres::Fused;

@@ -36,6 +36,12 @@ struct BoxRenderOptions {
   bool floor = true;
   double noise_sigma = 1.5;  ///< sensor noise, grey levels (8-bit)
   double orbit_deg = 36;     ///< azimuth swept about the box
+  /// Elevation of the orbit above the floor at the first and last frame (deg; linear in between,
+  /// plus the hand-held wobble). The default 24 -> 36 is the original orbit; 80 -> 50 with
+  /// `approach` 0.7 starts nearly top-down and descends towards the box, as the ViSP cube does.
+  double elevation0_deg = 24, elevation1_deg = 36;
+  /// Orbit radius at the last frame relative to the first (linear in between; 1: constant).
+  double approach = 1.0;
   double fps = 30;
 };
 
