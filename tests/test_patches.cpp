@@ -509,13 +509,20 @@ struct SphereTracksRun {
   double worst_normal_deg = NAN;  ///< largest patch normal error at the last frame
 };
 
-SphereTracksRun runSphereTracks(PatchCentres centres, bool fused_maps = false) {
+/// `still` > 0: that many still frames (frame 0 again, centres jittered by 0.01 px) come first.
+SphereTracksRun runSphereTracks(PatchCentres centres, bool fused_maps = false, int still = 0) {
   SphereTracksRun run;
   std::mt19937_64 rng(5);
   run.scene = makeSphereScene(SphereSceneOptions{}, rng);
   const PatchScene& s = run.scene;
   const double s_px = 320.0;
   run.tracks = tracksFromScene(s, s_px, 0.05, 9);
+  std::normal_distribution<double> jitter(0.0, 0.01);
+  for (int k = 0; k < still; ++k) {
+    std::vector<PatchObservation> f = run.tracks.frames[0];
+    for (auto& o : f) o.px += Eigen::Vector2d(jitter(rng), jitter(rng));
+    run.tracks.frames.insert(run.tracks.frames.begin() + 1, f);
+  }
   PatchPipelineOptions& o = run.options;
   o.scale_px = s_px;
   o.focal_px = s_px / s.beta;
@@ -553,6 +560,21 @@ TEST(PatchPipeline, RecoversTheSphereFromPixelTracks) {
   // Agreement statistic of the report.
   const NormalAgreement a = normalAgreement(last);
   EXPECT_EQ(static_cast<int>(a.angle_deg.size()), s.patches());
+}
+
+TEST(PatchPipeline, AStillStartIsNotStepped) {
+  // 12 still frames before the sphere's motion (as the ViSP cube's 17): they are taken as still
+  // (PatchPipelineOptions::still_px), keep the identity pose, and the run ends as without them
+  // (every normal within 3 deg).
+  const SphereTracksRun run = runSphereTracks(PatchCentres::Fused, false, 12);
+  const PatchRunResult& r = run.result;
+  ASSERT_TRUE(r.ok()) << r.stopped;
+  EXPECT_EQ(r.still_frames, 12);
+  ASSERT_GT(r.frames.size(), 13u);
+  for (int k = 1; k <= 12; ++k) EXPECT_TRUE(r.frames[k].R.isIdentity(0.0)) << "frame " << k;
+  EXPECT_FALSE(r.frames[13].R.isIdentity(1e-9));
+  EXPECT_LT(run.worst_normal_deg, 3.0);
+  EXPECT_EQ(runSphereTracks(PatchCentres::Fused).result.still_frames, 0);
 }
 
 TEST(PatchPipeline, FusedMapsRecoverTheSphereToo) {

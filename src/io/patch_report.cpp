@@ -35,7 +35,7 @@ nlohmann::json patchSummary(const PatchReport& r) {
   j["plane_reprojection_rms_px"] = nlohmann::json::array();
   j["patch_radius_px"] = t.radius;
   j["patches"] = {{"entered", res.entered}, {"joined", res.joined}, {"left", res.left},
-                  {"live_last_frame", static_cast<int>(last.patches.size())}};
+                  {"live_last_frame", static_cast<int>(last.patches.size())}, {"still_frames", res.still_frames}};
   const NormalAgreement a = normalAgreement(last);
   nlohmann::json per = nlohmann::json::array();
   for (size_t i = 0; i < a.ids.size(); ++i) {

@@ -185,6 +185,8 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
     res.frames.push_back(std::move(fr));
   };
   snapshot(0, nullptr);
+  int prev = 0;          // the last frame the filter stepped to (0 while the start is still)
+  bool moving = o.still_px <= 0.0;
   for (int k = 1; k < tracks.numFrames(); ++k) {
     // Patches whose track ended leave the state.
     for (int p = f.numPatches() - 1; p >= 0; --p) {
@@ -198,9 +200,24 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
       ids.erase(ids.begin() + p);
       ++res.left;
     }
+    if (!moving) {
+      std::vector<double> disp;
+      for (int p = 0; p < f.numPatches(); ++p) {
+        const PatchObservation* a = tracks.find(0, ids[p]);
+        const PatchObservation* b = tracks.find(k, ids[p]);
+        if (a && b) disp.push_back((b->px - a->px).norm());
+      }
+      moving = disp.empty() || median(std::move(disp)) > o.still_px;
+      if (!moving) {
+        ++res.still_frames;
+        snapshot(k, nullptr);
+        if (progress) progress(k + 1, tracks.numFrames());
+        continue;
+      }
+    }
     std::vector<AffineObservation> obs;
     for (int p = 0; p < f.numPatches(); ++p) {
-      const PatchObservation* a = tracks.find(k - 1, ids[p]);
+      const PatchObservation* a = tracks.find(prev, ids[p]);
       const PatchObservation* b = tracks.find(k, ids[p]);
       if (!a || !b) continue;
       AffineObservation ob;
@@ -281,7 +298,7 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
     std::set<int> live(ids.begin(), ids.end());
     double gmed = NAN;
     for (const auto& p : tracks.frames[k]) {
-      if (live.count(p.id) || !usable(p.id) || tracks.find(k - 1, p.id)) continue;
+      if (live.count(p.id) || !usable(p.id) || tracks.find(prev, p.id)) continue;
       if (std::isnan(gmed)) {
         std::vector<double> gs;
         for (int q = 0; q < f.numPatches(); ++q)
@@ -297,6 +314,7 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
       ++res.joined;
     }
     snapshot(k, &fs);
+    prev = k;
     // Posterior centre residuals of the accepted patches (pixels).
     double r2 = 0;
     int nr = 0;

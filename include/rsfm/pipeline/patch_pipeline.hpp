@@ -60,6 +60,14 @@ struct PatchPipelineOptions {
   double sigma_map = 0.003;
   AffineMeasurement measurement = AffineMeasurement::Exact;
   int min_patch_frames = 3;  ///< patches seen in fewer frames are left out
+  /// A still start: until the live patches' median displacement from the first frame exceeds
+  /// still_px, frames are taken as still (pose identity, no filter step), and the first step
+  /// maps the first frame to the first moving one. Stepping through still frames spent the
+  /// start-up (R annealing, a wide motion prior) on them and left the filter too confident of
+  /// zero motion when it began: on the ViSP cube (17 still frames, 0.01 px jitter) the floor then
+  /// took the wrong branch of the planar two-fold ambiguity under several settings (docs/patches.md).
+  /// <= 0: every frame is stepped.
+  double still_px = 0.25;
   double gate_probability = 0.999;
 };
 
@@ -89,6 +97,7 @@ struct PatchRunResult {
   int entered = 0;   ///< patches that entered the filter
   int joined = 0;    ///< of which after the first frame
   int left = 0;      ///< patches removed when their track ended
+  int still_frames = 0;  ///< frames after the first taken as still (PatchPipelineOptions::still_px)
   std::string stopped;  ///< empty when every frame was processed, else why not
   bool ok() const { return stopped.empty(); }
 };
