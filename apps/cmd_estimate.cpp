@@ -29,6 +29,11 @@ constexpr const char* kGridEndWarning =
     "the start's focal length is at the end of its grid (0.3-3 x max(width, height)): the homographies do not "
     "determine it; consider --focal-px or --focal0-px";
 
+/// summary.json's `start` of a successful homography start (docs/outputs.md).
+nlohmann::json startJson(const vision::PlaneStart& start) {
+  return {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}, {"focal_at_grid_end", start.at_grid_end}};
+}
+
 struct EstimateCli {
   std::string model = "planes";
   bool patches = false;  ///< --model patches: Calway's patch filter on affine patches
@@ -231,7 +236,7 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
     cands.push_back({{"verdict", vision::toString(c.verdict)}, {"label", c.label}, {"tracks", c.members.size()},
                      {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction}});
   if (start.ok)
-    rep.extra["start"] = {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}, {"focal_at_grid_end", start.at_grid_end}};
+    rep.extra["start"] = startJson(start);
   rep.extra["plane_finding"] = {{"pair_frame", tracks.first_frame + pf.pair_frame}, {"candidates", cands},
                                 {"manual", !e.finder.rois.empty()}};
   nlohmann::json summary;
@@ -291,7 +296,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
     if (start.ok) {
       po.focal0_px = start.focal_px;
       po.beta_sd0 = 0.1;
-      start_json = {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}, {"focal_at_grid_end", start.at_grid_end}};
+      start_json = startJson(start);
     }
     if (!e.quiet)
       fmt::print(stderr, "start: {}\n",

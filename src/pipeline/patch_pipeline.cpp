@@ -79,6 +79,7 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
   const double s = o.scale_px > 0 ? o.scale_px : std::max(W, Hh) / 2.0;
   if (!(o.sigma_px > 0) || !(o.sigma_affine > 0)) throw std::invalid_argument("noise standard deviations must be positive");
   if (!(o.depth0 > 0)) throw std::invalid_argument("depth0 must be positive");
+  if (std::isnan(o.still_px)) throw std::invalid_argument("still_px must be a number (<= 0: no still start)");
   const bool maps_in_state = o.centres == PatchCentres::State;
   if (maps_in_state && o.fused_maps) throw std::invalid_argument("fused maps and maps in the state (centres 'state') exclude each other");
   if (maps_in_state && o.measurement != AffineMeasurement::Exact)

@@ -62,10 +62,11 @@ int halfMotionFrame(const Tracks& tracks, const FoundPlane& plane, int k2) {
     std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
     return d[d.size() / 2];
   };
-  if (ref.empty() || static_cast<int>(plane.H.size()) <= k2) return std::max(1, k2 / 2);
-  const double half = 0.5 * motion(k2);
-  for (int k = 1; k < k2; ++k)
-    if (motion(k) >= half) return k;
+  if (!ref.empty() && static_cast<int>(plane.H.size()) > k2) {
+    const double half = 0.5 * motion(k2);
+    for (int k = 1; k < k2; ++k)
+      if (motion(k) >= half) return k;
+  }
   return std::max(1, k2 / 2);
 }
 
