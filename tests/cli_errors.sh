@@ -94,6 +94,31 @@ check "render: texture not an image" 2 "$R" -- render box --out "$R" --texture "
 check "render: unknown option" 2 "$R" -- render box --out "$R" --bogus
 check "render: missing --out" 2 "" -- render box
 check "render: output is a file" 2 "" -- render box --out "$TMP/afile" --frames 3
+# The regimes' options (issue 12; docs/render.md, docs/regimes.md).
+check "render: unknown scene" 2 "$R" -- render cylinder --out "$R"
+check "render: unknown regime" 2 "$R" -- render regime no-such-regime --out "$R"
+check "render: regime without a name" 2 "$R" -- render regime --out "$R"
+check "render: negative focal" 2 "$R" -- render corner --out "$R" --focal-px -300
+check "render: k1 folds the image" 2 "$R" -- render box --out "$R" --k1 -0.3
+check "render: k1 out of range" 2 "$R" -- render box --out "$R" --k1 1.5 --focal-px 2000
+check "render: still stretch longer than the sequence" 2 "$R" -- render box --out "$R" --frames 20 --still-start 30
+check "render: still stretches leave one moving frame" 2 "$R" -- render box --out "$R" --frames 20 --still-start 10 --still-middle 9
+check "render: unknown motion" 2 "$R" -- render poster --out "$R" --motion spiral
+check "render: forward without approach" 2 "$R" -- render poster --out "$R" --motion forward --approach 1
+check "render: principal point too far off" 2 "$R" -- render box --out "$R" --principal-offset 40,0
+check "render: blur out of range" 2 "$R" -- render box --out "$R" --blur 1.5
+check "render: jpeg quality out of range" 2 "$R" -- render box --out "$R" --jpeg-quality 101
+check "render: jitter out of range" 2 "$R" -- render box --out "$R" --jitter-deg 9
+check "render: no floor in the corner" 2 "$R" -- render corner --out "$R" --no-floor
+check "render: too fast" 2 "$R" -- render box --out "$R" --deg-per-frame 31
+echo '{"format":"rsfm-regimes","version":1,"sequences":[{"name":"a","options":{"seed":1,"colour":2}}]}' >"$TMP/suite1.json"
+check "render: suite with an unknown option" 2 "$R" -- render regime a --out "$R" --suite "$TMP/suite1.json"
+echo '{"format":"rsfm-regimes","version":1,"sequences":[{"name":"a","options":{"frames":5}}]}' >"$TMP/suite2.json"
+check "render: suite sequence without a seed" 2 "$R" -- render regime a --out "$R" --suite "$TMP/suite2.json"
+echo '{"format":"rsfm-regimes","version":1,"sequences":[{"name":"a","options":{"seed":1,"k1":-0.6}}]}' >"$TMP/suite3.json"
+check "render: suite sequence with an invalid option" 2 "$R" -- render regime a --out "$R" --suite "$TMP/suite3.json"
+printf '{"format":"rsfm-regimes",\n "version":1,\n "sequences":[}' >"$TMP/suite4.json"
+check "render: suite not JSON" 2 "$R" -- render regime a --out "$R" --suite "$TMP/suite4.json"
 if "$RSFM" render box --out "$R" --frames 4 --width 160 --height 120 --focal-px 130 --quiet 2>"$TMP/err.txt" &&
    [ -s "$R/video.mp4" ] && [ "$(grep -vc '^#' "$R/truth/trajectory.tum")" -eq 4 ] &&
    grep -q '"format": "rsfm-summary"' "$R/truth/summary.json" && [ -z "$(find "$R" -name "*.tmp*")" ]; then

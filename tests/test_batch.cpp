@@ -176,6 +176,73 @@ TEST(PlaneBatch, ImprovesOnTheFilterAndItsCovarianceIsConsistent) {
   EXPECT_LT(nees, hi);
 }
 
+TEST(PlaneBatchBound, EqualsCeresCovarianceOnAFullRankProblem) {
+  // The bound by Schur complement and eigen-decomposition (plane_batch_bound.cpp) against Ceres's
+  // covariance at the same (exact) state.
+  Sequence s = makeSequence(1.0, 7, 40);
+  const PlaneBatchState st = truthState(s);
+  for (size_t k = 0; k < s.data.frames.size(); ++k)
+    for (auto& o : s.data.frames[k]) o.uv = s.scene.uv[k][o.id];
+  const PlaneBatchBound b = planeBatchBound(s.data, st);
+  ASSERT_TRUE(b.ok) << b.message;
+  EXPECT_EQ(b.null_dim, 0);
+  EXPECT_TRUE(b.beta_estimable);
+  ASSERT_EQ(b.normal_estimable.size(), 1u);
+  EXPECT_TRUE(b.normal_estimable[0]);
+  PlaneBatchOptions bo;
+  bo.max_iterations = 1;
+  const PlaneBatchResult r = solvePlaneBatch(s.data, st, bo);
+  ASSERT_TRUE(r.covariance_ok) << r.message;
+  EXPECT_NEAR(b.var_beta / r.var_beta, 1.0, 1e-6);
+  EXPECT_LT((b.cov_N[0] - r.cov_N[0]).norm(), 1e-6 * r.cov_N[0].norm());
+}
+
+TEST(PlaneBatchBound, NullSpacesOfPureRotationAndPureTranslation) {
+  // Pure rotation: no translation, so the plane is invisible in the data (its two free
+  // components are in the null space) while beta is determined. Pure translation: the affine
+  // ambiguity (f, t_X, t_Y, N_X, N_Y scaled together) is a one-dimensional null space holding beta
+  // and the normal's tilt.
+  for (const bool rotation : {true, false}) {
+    Sequence s = makeSequence(1.0, 9, 30);
+    PlaneBatchState st = truthState(s);
+    const int Np = static_cast<int>(s.scene.points.size());
+    for (size_t k = 1; k < st.R.size(); ++k) {
+      const double a = 0.01 * k;
+      if (rotation) {
+        st.R[k] = Eigen::AngleAxisd(a, Eigen::Vector3d(0.3, 1, 0.2).normalized()).toRotationMatrix();
+        // A&P translation of a rotation about the centre of projection (camera.hpp): -(I - R) e_z / beta.
+        st.t[k] = -(Eigen::Matrix3d::Identity() - st.R[k]) * Eigen::Vector3d::UnitZ() / st.beta;
+        st.t[k].z() *= st.beta;
+      } else {
+        st.R[k].setIdentity();
+        st.t[k] = Eigen::Vector3d(a, 0.3 * a, 0.5 * a);
+      }
+    }
+    // Exact observations of this motion.
+    for (size_t k = 0; k < s.data.frames.size(); ++k)
+      for (int i = 0; i < Np; ++i) {
+        Eigen::Vector3d p, dpb;
+        Eigen::Matrix3d dpN;
+        ASSERT_EQ(PlaneModel::point(st.N[0], st.beta, st.ref[i], &p, &dpb, &dpN), MeasureStatus::Ok);
+        Eigen::Vector3d q = st.R[k] * p;
+        q.z() *= st.beta;
+        q += st.t[k];
+        s.data.frames[k][i].uv = q.head<2>() / (1 + q.z());
+      }
+    const PlaneBatchBound b = planeBatchBound(s.data, st);
+    ASSERT_TRUE(b.ok) << b.message;
+    if (rotation) {
+      EXPECT_EQ(b.null_dim, 2) << b.message;
+      EXPECT_TRUE(b.beta_estimable);
+      EXPECT_FALSE(b.normal_estimable[0]);
+    } else {
+      EXPECT_EQ(b.null_dim, 1) << b.message;
+      EXPECT_FALSE(b.beta_estimable);
+      EXPECT_FALSE(b.normal_estimable[0]);
+    }
+  }
+}
+
 TEST(PlaneBatch, RejectsInconsistentSizes) {
   PlaneBatchData d;
   d.frames.resize(3);

@@ -14,14 +14,14 @@
 
 #include "rsfm/io/summary.hpp"
 #include "rsfm/io/tum.hpp"
-#include "rsfm/render/box_render.hpp"
+#include "rsfm/render/scene_render.hpp"
 
 namespace rsfm::render {
 namespace {
 namespace fs = std::filesystem;
 
-BoxRenderOptions smallOptions() {
-  BoxRenderOptions o;
+RenderOptions smallOptions() {
+  RenderOptions o;
   o.frames = 20;
   o.width = 320;
   o.height = 240;
@@ -42,7 +42,7 @@ class RenderedBox : public ::testing::Test {
     dir_ = fs::temp_directory_path() / ("rsfm_test_render_" + std::to_string(::getpid()));
     fs::remove_all(dir_);
     fs::create_directories(dir_);
-    result_ = writeBoxSequence(smallOptions(), dir_);
+    result_ = writeSequence(smallOptions(), dir_);
   }
   static void TearDownTestSuite() { fs::remove_all(dir_); }
   static fs::path dir_;
@@ -143,9 +143,9 @@ TEST(BoxRender, RenderedFramesEqualTheExactPlaneWarp) {
   // frame k and into frame 0 warped by the truth homography of their plane land at the same
   // place. (Tracking error of Lucas-Kanade's translation model on foreshortened planes is the
   // same in both and cancels; it is what the video test's 0.3 px tolerance is for.)
-  BoxRenderOptions o = smallOptions();
+  RenderOptions o = smallOptions();
   o.noise_sigma = 0;
-  BoxScene scene(o);
+  Scene scene(o);
   const io::Summary s = scene.truth();
   Eigen::Matrix3d K;
   K << *s.focal_px, 0, s.principal_point_px.x(), 0, *s.focal_px, s.principal_point_px.y(), 0, 0, 1;
@@ -201,7 +201,7 @@ TEST_F(RenderedBox, TrackedCornersFollowTheTruthPlaneHomographies) {
   ASSERT_EQ(grey.size(), 20u);
   // Plane labels from the scene itself (corners are taken well inside a plane). Frame pairs at the
   // start and in the middle (there the truth is re-expressed in frame a's camera frame).
-  BoxScene scene(smallOptions());
+  Scene scene(smallOptions());
   for (const auto& [a, b] : {std::pair{0, 1}, std::pair{10, 11}}) {
     cv::Mat labels;
     scene.render(a, &labels);
@@ -233,11 +233,11 @@ TEST(BoxRender, SilhouetteEdgeLiesWhereTheTruthProjectsIt) {
   fs::create_directories(dir);
   const fs::path tex = dir / "grey.png";
   cv::imwrite(tex.string(), cv::Mat(32, 32, CV_8UC3, cv::Scalar(40, 40, 40)));
-  BoxRenderOptions o = smallOptions();
+  RenderOptions o = smallOptions();
   o.noise_sigma = 0;
   o.floor = false;
   o.texture = tex.string();
-  BoxScene scene(o);
+  Scene scene(o);
   fs::remove_all(dir);
   cv::Mat grey;
   cv::cvtColor(scene.render(0), grey, cv::COLOR_BGR2GRAY);
@@ -276,7 +276,7 @@ TEST(BoxRender, SilhouetteEdgeLiesWhereTheTruthProjectsIt) {
 }
 
 TEST(BoxRender, ValidateRejectsBadOptions) {
-  BoxRenderOptions o = smallOptions();
+  RenderOptions o = smallOptions();
   EXPECT_TRUE(validate(o).empty());
   o.frames = 1;
   EXPECT_FALSE(validate(o).empty());

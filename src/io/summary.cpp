@@ -117,6 +117,36 @@ Summary readSummary(const std::filesystem::path& file) {
     s.scene_size = number(file, j.at("scene_size"), "\"scene_size\"");
     if (!(*s.scene_size > 0)) bad(file, "\"scene_size\" must be positive");
   }
+  if (j.contains("radial_distortion") && !j.at("radial_distortion").is_null()) {
+    const json& d = j.at("radial_distortion");
+    if (!d.is_array() || d.size() != 2) bad(file, "\"radial_distortion\" must be [k1, k2]");
+    s.distortion = Eigen::Vector2d(number(file, d[0], "\"radial_distortion\"[0]"), number(file, d[1], "\"radial_distortion\"[1]"));
+  }
+  if (j.contains("determinable") && !j.at("determinable").is_null()) {
+    const json& d = j.at("determinable");
+    if (!d.is_object()) bad(file, "\"determinable\" must be an object");
+    Determinable det;
+    for (const char* key : {"focal", "structure"}) {
+      const json& b = required(file, d, key);
+      if (!b.is_boolean()) bad(file, fmt::format("\"determinable.{}\" must be true or false", key));
+      (std::string(key) == "focal" ? det.focal : det.structure) = b.get<bool>();
+    }
+    if (d.contains("why")) {
+      if (!d.at("why").is_string()) bad(file, "\"determinable.why\" must be a string");
+      det.why = d.at("why").get<std::string>();
+    }
+    if (d.contains("crb_focal_rel_sd") && !d.at("crb_focal_rel_sd").is_null())
+      det.crb_focal_rel_sd = number(file, d.at("crb_focal_rel_sd"), "\"determinable.crb_focal_rel_sd\"");
+    if (d.contains("crb_normal_sd_deg") && !d.at("crb_normal_sd_deg").is_null()) {
+      const json& a = d.at("crb_normal_sd_deg");
+      if (!a.is_array() || a.size() != s.planes.size())
+        bad(file, "\"determinable.crb_normal_sd_deg\" must have one entry (number or null) per plane");
+      for (const json& v : a)
+        det.crb_normal_sd_deg.push_back(v.is_null() ? std::optional<double>()
+                                                    : std::optional<double>(number(file, v, "\"determinable.crb_normal_sd_deg\"")));
+    }
+    s.determinable = det;
+  }
   return s;
 }
 
@@ -136,6 +166,19 @@ std::string summaryToJson(const Summary& s) {
   if (!s.plane_names.empty()) o["plane_names"] = s.plane_names;
   if (!s.plane_visible_frames.empty()) o["plane_visible_frames"] = s.plane_visible_frames;
   if (s.scene_size) o["scene_size"] = *s.scene_size;
+  if (s.distortion) o["radial_distortion"] = {s.distortion->x(), s.distortion->y()};
+  if (s.determinable) {
+    const Determinable& d = *s.determinable;
+    nlohmann::ordered_json dj;
+    dj["focal"] = d.focal;
+    dj["structure"] = d.structure;
+    dj["why"] = d.why;
+    dj["crb_focal_rel_sd"] = d.crb_focal_rel_sd ? nlohmann::ordered_json(*d.crb_focal_rel_sd) : nlohmann::ordered_json(nullptr);
+    nlohmann::ordered_json a = nlohmann::ordered_json::array();
+    for (const auto& v : d.crb_normal_sd_deg) a.push_back(v ? nlohmann::ordered_json(*v) : nlohmann::ordered_json(nullptr));
+    dj["crb_normal_sd_deg"] = a;
+    o["determinable"] = dj;
+  }
   return o.dump(2) + "\n";
 }
 

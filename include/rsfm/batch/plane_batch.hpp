@@ -71,6 +71,26 @@ MeasureStatus planeBatchResidual(const Eigen::Vector3d& t, const Eigen::Vector3d
                                  Eigen::Matrix<double, 2, 6>* J_motion, Eigen::Vector2d* J_beta,
                                  Eigen::Matrix<double, 2, 3>* J_N, Eigen::Matrix2d* J_ref);
 
+/// The Cramer-Rao bound of the batch problem at a state (with references estimated), accounting
+/// for parameters the data do not determine: the Fisher information J^T J of every observation
+/// (frame 0 as reference residuals) with the gauge component removed, the per-frame motions
+/// eliminated by Schur complement (each frame needs >= 4 observations: otherwise ok = false), and
+/// its null space found by eigen-decomposition. A quantity is estimable when its gradient is
+/// orthogonal to that null space; its bound is then the pseudo-inverse's quadratic form.
+/// Pure rotation leaves the planes in the null space; pure translation leaves beta and the
+/// planes' tilt (the affine ambiguity).
+struct PlaneBatchBound {
+  bool ok = false;
+  std::string message;
+  int parameters = 0;   ///< references, beta and the planes (the motions eliminated)
+  int null_dim = 0;     ///< dimension of the null space
+  bool beta_estimable = false;
+  double var_beta = 0;                      ///< when estimable
+  std::vector<bool> normal_estimable;       ///< per plane: the normal's direction (2 tangent functionals)
+  std::vector<Eigen::Matrix3d> cov_N;       ///< per plane (gauge row/column zero; meaningful when estimable)
+};
+PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchState& at);
+
 /// Solves the batch problem from `start`. Never throws on numerical trouble: converged = false
 /// and message say what happened.
 PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchState& start,

@@ -8,7 +8,10 @@
 //                                   the plane: n.X = d with d > 0
 //    "plane_distances":[d,...],     trajectory units
 //    "plane_tracks":[...], "plane_reprojection_rms_px":[...],   estimates only (optional)
-//    "plane_names":[...], "scene_size": s}                      truth only (optional)
+//    "plane_names":[...], "scene_size": s,                      truth only (optional)
+//    "radial_distortion":[k1,k2],   OpenCV's convention (optional; absent: none)
+//    "determinable":{"focal":b,"structure":b,"why":"...","crb_focal_rel_sd":x|null,
+//                    "crb_normal_sd_deg":[...]|null}   truth only (optional; docs/render.md)}
 // Pixel coordinates follow OpenCV: integer values at pixel centres, (0,0) = top-left pixel.
 // "focal_px" may be null (unknown). Unknown keys are kept out of the struct but allowed.
 #include <Eigen/Core>
@@ -20,6 +23,16 @@
 #include "rsfm/io/input_error.hpp"
 
 namespace rsfm::io {
+
+/// Which quantities a (rendered) sequence determines: from the Cramer-Rao bound of the plane
+/// model's batch problem at the truth (render/determinacy.hpp; limits in rsfm/determinacy.hpp).
+struct Determinable {
+  bool focal = true;      ///< the focal length
+  bool structure = true;  ///< the plane normals and distances (and the translation's direction)
+  std::string why;        ///< one line: what the analysis found
+  std::optional<double> crb_focal_rel_sd;        ///< sd(f)/f at the bound; absent when rank-deficient
+  std::vector<std::optional<double>> crb_normal_sd_deg;  ///< per truth plane; nullopt: not analysed / not determined
+};
 
 struct Summary {
   int frames = 0;
@@ -34,6 +47,8 @@ struct Summary {
   std::vector<std::string> plane_names;         ///< truth (may be empty)
   std::optional<double> scene_size;             ///< truth: scene size in trajectory units
   std::vector<int> plane_visible_frames;        ///< truth: frames in which each plane is visible (may be empty)
+  std::optional<Eigen::Vector2d> distortion;    ///< radial (k1, k2), OpenCV's convention
+  std::optional<Determinable> determinable;     ///< truth: what the sequence determines
 };
 
 /// Reads and checks a summary.json. Throws InputError ("FILE:LINE: ..." for JSON syntax errors,

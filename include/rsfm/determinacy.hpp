@@ -1,0 +1,15 @@
+#pragma once
+// When a quantity counts as determined by the data (docs/render.md, "Determinacy").
+//
+// One definition for the renderer's truth (the Cramer-Rao bound of the plane model's batch problem
+// at the truth, render/determinacy.hpp) and for what the estimator reports: a quantity is
+// determined when its covariance has full rank and its standard deviation is at most the limit
+// below. Above it, the data support only a wide interval, which is reported instead of a number.
+namespace rsfm {
+
+/// The focal length: relative sd sd(f)/f at most 5 % (a 95 % interval within about +-10 %).
+inline constexpr double kDeterminedFocalRelSd = 0.05;
+/// A plane's normal: sd of its direction (sqrt of the trace of its 2x2 tangent covariance) at most 5 deg.
+inline constexpr double kDeterminedNormalSdDeg = 5.0;
+
+}  // namespace rsfm

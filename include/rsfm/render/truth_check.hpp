@@ -1,0 +1,35 @@
+#pragma once
+// Checks of a rendered sequence against its truth (docs/render.md, "Checks"; docs/regimes.md).
+//
+//  - trackAgainstTruth: corners of frame a tracked into frame b by pyramidal Lucas-Kanade (the
+//    frames as decoded from the video, with every image effect) against where the truth puts
+//    them (Scene::transfer): the truth seen through a real tracker, tracker errors included.
+//  - renderedAgainstWarp: the renderer's geometry alone: corners of frame a tracked into rendered
+//    frame b and into frame a warped to b's view through the truth (warpThroughTruth) land at the
+//    same place; the tracker's own errors (its translation model on foreshortened faces) are the
+//    same in both and cancel.
+// Corners are taken well inside one surface (labels eroded by 13 x 13 px), 12 px from the border.
+#include <opencv2/core.hpp>
+#include <vector>
+
+#include "rsfm/render/scene_render.hpp"
+
+namespace rsfm::render {
+
+struct TruthCheck {
+  int a = 0, b = 0;
+  int tracks = 0;           ///< corners compared
+  int surfaces = 0;         ///< surfaces (truth planes, the still body) with >= 5 of them
+  double median_px = 0;     ///< median distance (valid when tracks > 0)
+  double p90_px = 0;        ///< 90th percentile
+};
+
+TruthCheck trackAgainstTruth(const Scene& scene, const cv::Mat& grey_a, const cv::Mat& grey_b, int a, int b);
+
+/// Frame a's image seen from frame b: each pixel of b takes the colour of the point of a it
+/// shows (Scene::transfer through b's labels), bicubic; 0 where b shows the background.
+cv::Mat warpThroughTruth(const Scene& scene, const cv::Mat& img_a, int a, int b);
+
+TruthCheck renderedAgainstWarp(const Scene& scene, int a, int b);
+
+}  // namespace rsfm::render
