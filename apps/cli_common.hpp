@@ -40,5 +40,6 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands);
 void addEstimateCommands(CLI::App& app, std::vector<Command>& commands);
 void addRenderCommands(CLI::App& app, std::vector<Command>& commands);
 void addEvaluateCommands(CLI::App& app, std::vector<Command>& commands);
+void addBenchCommands(CLI::App& app, std::vector<Command>& commands);
 
 }  // namespace rsfm::cli

@@ -27,6 +27,7 @@ int main(int argc, char** argv) {
   addEstimateCommands(app, commands);
   addRenderCommands(app, commands);
   addEvaluateCommands(app, commands);
+  addBenchCommands(app, commands);
 
   // Name an unknown command word explicitly (CLI11 would only say a subcommand is required).
   {

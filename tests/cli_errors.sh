@@ -118,6 +118,31 @@ check "render: suite sequence without a seed" 2 "$R" -- render regime a --out "$
 echo '{"format":"rsfm-regimes","version":1,"sequences":[{"name":"a","options":{"seed":1,"k1":-0.6}}]}' >"$TMP/suite3.json"
 check "render: suite sequence with an invalid option" 2 "$R" -- render regime a --out "$R" --suite "$TMP/suite3.json"
 printf '{"format":"rsfm-regimes",\n "version":1,\n "sequences":[}' >"$TMP/suite4.json"
+B="$TMP/bench"
+check "bench: unknown sequence" 2 "$B" -- bench regimes --out "$B" --only box-orbit,no-such
+check "bench: negative jobs" 2 "$B" -- bench regimes --out "$B" --jobs -1
+check "bench: missing rsfm binary" 2 "$B" -- bench regimes --out "$B" --rsfm "$TMP/none"
+check "bench: bad suite" 2 "$B" -- bench regimes --out "$B" --suite "$TMP/suite1.json"
+check "bench: unknown bench" 2 "$B" -- bench speed --out "$B"
+# A small good bench: a two-sequence suite (a 20-frame poster orbit and a still one), no real rows.
+cat >"$TMP/suite-small.json" <<'JSON'
+{"format":"rsfm-regimes","version":1,"sequences":[
+ {"name":"tiny-poster","why":"smoke test","axes":["scene:poster"],
+  "options":{"scene":"poster","frames":20,"width":320,"height":240,"focal_px":260,"orbit_deg":20,"seed":3}},
+ {"name":"tiny-still","why":"smoke test","axes":["motion:none"],
+  "options":{"scene":"poster","frames":8,"width":320,"height":240,"focal_px":260,"motion":"none","seed":4}}]}
+JSON
+BG="$TMP/bench-good"
+if "$RSFM" bench regimes --out "$BG" --suite "$TMP/suite-small.json" --cache "$TMP/cache" --no-real --quiet 2>"$TMP/err.txt" &&
+   head -1 "$BG/scoreboard.csv" | grep -q '^sequence,kind,axes,frames,exit_code,message,frames_processed' &&
+   grep -q '^tiny-poster,rendered,' "$BG/scoreboard.csv" && grep -q '^tiny-still,rendered,' "$BG/scoreboard.csv" &&
+   grep -q '^aggregate:share,' "$BG/scoreboard.csv" && grep -q '"format": "rsfm-scoreboard"' "$BG/scoreboard.json" &&
+   grep -q 'sequences run to the end' "$BG/scoreboard.md" && [ -s "$BG/runs/tiny-poster/summary.json" ] &&
+   [ -d "$TMP/cache" ] && [ -z "$(find "$BG" -name "*.tmp*")" ]; then
+  pass=$((pass + 1)); echo "ok   bench good run: $(grep -c ',rendered,' "$BG/scoreboard.csv") rendered rows"
+else
+  fail=$((fail + 1)); echo "FAIL bench good run: $(cat "$TMP/err.txt"); $(ls -R "$BG" 2>&1 | tr '\n' ' ')"
+fi
 check "render: suite not JSON" 2 "$R" -- render regime a --out "$R" --suite "$TMP/suite4.json"
 if "$RSFM" render box --out "$R" --frames 4 --width 160 --height 120 --focal-px 130 --quiet 2>"$TMP/err.txt" &&
    [ -s "$R/video.mp4" ] && [ "$(grep -vc '^#' "$R/truth/trajectory.tum")" -eq 4 ] &&

@@ -1049,7 +1049,7 @@ cv::Mat Scene::render(int k, cv::Mat* labels) const {
   const int n = s.o.movingFrames();
   if (s.o.blur > 0 && !s.added_still[k] && s.o.motion != MotionKind::None) {
     // Motion blur: the mean of sub-frame renderings over the exposure [tau - e, tau + e], sampled
-    // finely enough that the image moves at most half a pixel between sub-frames.
+    // finely enough that the image moves at most one pixel between sub-frames.
     const double e = 0.5 * s.o.blur / (n - 1);
     const double t0 = std::max(0.0, s.tau[k] - e), t1 = std::min(1.0, s.tau[k] + e);
     const Impl::Pose a = s.poseAt(t0), b = s.poseAt(t1);
@@ -1061,7 +1061,7 @@ cv::Mat Scene::render(int k, cv::Mat* labels) const {
       if (pa.size() != 4 || pb.size() != 4) continue;
       for (int i = 0; i < 4; ++i) disp = std::max(disp, std::hypot(pa[i].x - pb[i].x, pa[i].y - pb[i].y));
     }
-    const int subs = std::clamp(static_cast<int>(std::ceil(2.0 * disp)) + 1, 2, 48);
+    const int subs = std::clamp(static_cast<int>(std::ceil(disp)) + 1, 2, 48);
     cv::Mat acc(s.canvasSize(2), CV_32FC3, cv::Scalar::all(0));
     for (int i = 0; i < subs; ++i) {
       const double t = t0 + (t1 - t0) * i / (subs - 1);
