@@ -7,7 +7,7 @@ BUILD ?= build
 OUT ?= out
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 
-.PHONY: all deps configure build demo experiments test bench clean
+.PHONY: all deps configure build demo experiments regimes test bench clean
 
 all: build
 
@@ -29,6 +29,11 @@ experiments: build
 	./$(BUILD)/rsfm experiment planes --out $(OUT)/planes
 	./$(BUILD)/rsfm experiment two-object --out $(OUT)/two-object
 	./$(BUILD)/rsfm experiment patches --out $(OUT)/patches
+
+# The regime suite's scoreboard (issue 12; docs/regimes.md): 34 rendered sequences and the real
+# rows with default options, into $(OUT)/regimes (renderings cached in ~/.cache/rsfm/regimes).
+regimes: build
+	./$(BUILD)/rsfm bench regimes --out $(OUT)/regimes
 
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j$(JOBS)

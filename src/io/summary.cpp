@@ -1,5 +1,7 @@
 #include "rsfm/io/summary.hpp"
 
+#include "rsfm/io/json_text.hpp"
+
 #include <fmt/format.h>
 
 #include <cmath>
@@ -41,17 +43,7 @@ Summary readSummary(const std::filesystem::path& file) {
   std::stringstream ss;
   ss << in.rdbuf();
   const std::string text = ss.str();
-  json j;
-  try {
-    j = json::parse(text);
-  } catch (const json::parse_error& e) {
-    int line = 1;
-    for (std::size_t i = 0; i < std::min<std::size_t>(e.byte > 0 ? e.byte - 1 : 0, text.size()); ++i)
-      if (text[i] == '\n') ++line;
-    std::string msg = e.what();
-    if (auto p = msg.find("syntax error"); p != std::string::npos) msg = msg.substr(p);
-    throw InputError(fmt::format("{}:{}: invalid JSON: {}", file.string(), line, msg));
-  }
+  const json j = parseJsonText(text, file.string());
   if (!j.is_object()) bad(file, "top level must be a JSON object");
   Summary s;
   const json& fmt_ = required(file, j, "format");

@@ -9,6 +9,7 @@
 #include <stdexcept>
 
 #include "rsfm/io/input_error.hpp"
+#include "rsfm/io/json_text.hpp"
 
 namespace rsfm::render {
 
@@ -125,17 +126,7 @@ std::string RegimeSuite::names() const {
 
 RegimeSuite parseRegimeSuite(const std::string& text, const std::string& source) {
   auto bad = [&](const std::string& m) -> void { throw io::InputError(source + ": " + m); };
-  json j;
-  try {
-    j = json::parse(text);
-  } catch (const json::parse_error& e) {
-    int line = 1;
-    for (std::size_t i = 0; i < std::min<std::size_t>(e.byte > 0 ? e.byte - 1 : 0, text.size()); ++i)
-      if (text[i] == '\n') ++line;
-    std::string msg = e.what();
-    if (auto p = msg.find("syntax error"); p != std::string::npos) msg = msg.substr(p);
-    throw io::InputError(fmt::format("{}:{}: invalid JSON: {}", source, line, msg));
-  }
+  const json j = io::parseJsonText(text, source);
   RegimeSuite suite;
   suite.source = source;
   if (!j.is_object()) bad("top level must be a JSON object");

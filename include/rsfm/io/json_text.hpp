@@ -1,0 +1,13 @@
+#pragma once
+// Parsing a JSON document a user gave us: a syntax error becomes io::InputError
+// "SOURCE:LINE: invalid JSON: ..." (the line of the offending byte).
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "rsfm/io/input_error.hpp"
+
+namespace rsfm::io {
+
+nlohmann::json parseJsonText(const std::string& text, const std::string& source);
+
+}  // namespace rsfm::io

@@ -1,0 +1,22 @@
+#include "rsfm/io/json_text.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+
+namespace rsfm::io {
+
+nlohmann::json parseJsonText(const std::string& text, const std::string& source) {
+  try {
+    return nlohmann::json::parse(text);
+  } catch (const nlohmann::json::parse_error& e) {
+    int line = 1;
+    for (std::size_t i = 0; i < std::min<std::size_t>(e.byte > 0 ? e.byte - 1 : 0, text.size()); ++i)
+      if (text[i] == '\n') ++line;
+    std::string msg = e.what();
+    if (auto p = msg.find("syntax error"); p != std::string::npos) msg = msg.substr(p);
+    throw InputError(fmt::format("{}:{}: invalid JSON: {}", source, line, msg));
+  }
+}
+
+}  // namespace rsfm::io
