@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <memory>
+#include <optional>
 #include <sstream>
 
 #include "cli_common.hpp"
@@ -12,6 +13,7 @@
 #include "rsfm/io/estimate_report.hpp"
 #include "rsfm/io/patch_report.hpp"
 #include "rsfm/io/patches_io.hpp"
+#include "rsfm/pipeline/estimate.hpp"
 #include "rsfm/pipeline/patch_pipeline.hpp"
 #include "rsfm/io/tracks_io.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
@@ -24,221 +26,184 @@ namespace rsfm::cli {
 
 namespace {
 
-/// Printed when the homography start's focal length is at an end of its grid (PlaneStart::at_grid_end).
-constexpr const char* kGridEndWarning =
-    "the start's focal length is at the end of its grid (0.3-3 x max(width, height)): the homographies do not "
-    "determine it; consider --focal-px or --focal0-px";
-
 /// summary.json's `start` of a successful homography start (docs/outputs.md).
 nlohmann::json startJson(const vision::PlaneStart& start) {
   return {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}, {"focal_at_grid_end", start.at_grid_end}};
 }
 
+/// The command line of `rsfm estimate` / `rsfm run`: the library's option structs (filled by
+/// CLI11 directly, each option in one place) and the few words that need parsing.
 struct EstimateCli {
-  std::string model = "planes";
-  bool patches = false;  ///< --model patches: Calway's patch filter on affine patches
-  PatchPipelineOptions patch;
+  EstimateOptions est;          ///< point | plane | planes (pipeline/estimate.hpp)
+  PatchEstimateOptions pat;     ///< patches
+  std::string model = toString(TrackModel::Planes);
+  bool patches = false;         ///< --model patches: Calway's patch filter on affine patches
   std::string centres = "fused", measurement = "exact";
-  TrackFilterOptions filter;
-  vision::PlaneFinderOptions finder;
-  std::string plane_rois;  ///< "x,y,...;x,y,..."
-  double q_trans = 3e-4, q_omega = 1e-4, q_beta = 0.0;
-  std::string reference = "refine";
-  double gate = 0.999;
-  int iterations = 1;
-  int iekf_after = 10;
+  std::string reference = std::string(toString(TrackFilterOptions::defaultFilter().reference));
+  std::string plane_rois;       ///< "x,y,...;x,y,..."
+  std::optional<double> beta_sd0;  ///< --beta-sd0: either pipeline's
   bool plots = true;
-  bool init = true;
-  double normal_sd0 = -1.0, beta_sd0 = -1.0;  // < 0: automatic
   bool quiet = false;
   std::string out = "out";
 };
 
 void addEstimateOptions(CLI::App* a, EstimateCli* e) {
+  TrackFilterOptions& f = e->est.filter;
+  PatchPipelineOptions& pp = e->pat.patch;
   a->add_option("--model", e->model,
                 "point | plane (dominant plane) | planes (rigid multi-plane) | patches (Calway's filter on affine patches)")
       ->capture_default_str();
-  a->add_option("--patch-sigma-px", e->patch.sigma_px, "patches: centre noise sd (px)")->capture_default_str();
-  a->add_option("--sigma-affine", e->patch.sigma_affine, "patches: noise sd of each entry of the inter-frame map A")
+  a->add_option("--patch-sigma-px", pp.sigma_px, "patches: centre noise sd (px)")->capture_default_str();
+  a->add_option("--sigma-affine", pp.sigma_affine, "patches: noise sd of each entry of the inter-frame map A")
       ->capture_default_str();
   a->add_option("--centres", e->centres, "patches: centres measured | predicted | fused | state (docs/patches.md)")
       ->capture_default_str();
   a->add_option("--measurement", e->measurement, "patches: affine measurement exact | instantaneous")->capture_default_str();
-  a->add_option("--fused-maps", e->patch.fused_maps, "patches: estimate each patch's cumulative map beside the filter (true/false)")
+  a->add_option("--fused-maps", pp.fused_maps, "patches: estimate each patch's cumulative map beside the filter (true/false)")
       ->capture_default_str();
-  a->add_option("--sigma-map", e->patch.sigma_map, "patches: noise sd of the tracker's cumulative map entries (--fused-maps)")
+  a->add_option("--sigma-map", pp.sigma_map, "patches: noise sd of the tracker's cumulative map entries (--fused-maps)")
       ->capture_default_str();
-  a->add_option("--anneal-frames", e->patch.anneal_frames, "patches: frames over which R is annealed (0: none)")
+  a->add_option("--anneal-frames", pp.anneal_frames, "patches: frames over which R is annealed (0: none)")
       ->capture_default_str();
-  a->add_option("--patch-q-omega", e->patch.q_omega, "patches: process variance of the inter-frame rotation")
+  a->add_option("--patch-q-omega", pp.q_omega, "patches: process variance of the inter-frame rotation")
       ->capture_default_str();
-  a->add_option("--patch-q-trans-rel", e->patch.q_trans_rel,
+  a->add_option("--patch-q-trans-rel", pp.q_trans_rel,
                 "patches: per-frame sd of the inter-frame translation's change, relative to the start depth")
       ->capture_default_str();
-  a->add_option("--focal-px", e->filter.focal_px, "known focal length in px (0: estimate it)")->capture_default_str();
-  a->add_option("--focal0-px", e->filter.focal0_px, "initial focal guess in px (0: max(width, height))")
+  a->add_option("--focal-px", f.focal_px, "known focal length in px (0: estimate it)")->capture_default_str();
+  a->add_option("--focal0-px", f.focal0_px, "initial focal guess in px (0: from the homographies, else max(width, height))")
       ->capture_default_str();
-  a->add_option("--sigma-px", e->filter.sigma_px, "tracking noise sd (px)")->capture_default_str();
-  a->add_option("--q-trans-rel", e->filter.q_trans_rel,
-                 "plane models: per-frame translation sd relative to the main plane's depth")
+  a->add_option("--sigma-px", f.sigma_px, "tracking noise sd (px)")->capture_default_str();
+  a->add_option("--q-trans-rel", f.q_trans_rel, "plane models: per-frame translation sd relative to the main plane's depth")
       ->capture_default_str();
-  a->add_option("--q-trans", e->q_trans, "process variance of t per frame (point model; plane models with --q-trans-rel 0)")
-      ->capture_default_str();
-  a->add_option("--q-omega", e->q_omega, "process variance of omega per frame")->capture_default_str();
-  a->add_option("--q-beta", e->q_beta, "process variance of beta per frame")->capture_default_str();
+  Eigen::Matrix<double, 7, 1>& q = f.filter.q_motion;
+  a->add_option_function<double>("--q-trans", [&q](double v) { q[0] = q[1] = q[2] = v; },
+                                 "process variance of t per frame (point model; plane models with --q-trans-rel 0)")
+      ->default_str(fmt::format("{}", q[0]));
+  a->add_option_function<double>("--q-omega", [&q](double v) { q[3] = q[4] = q[5] = v; }, "process variance of omega per frame")
+      ->default_str(fmt::format("{}", q[3]));
+  a->add_option_function<double>("--q-beta", [&q](double v) { q[6] = v; }, "process variance of beta per frame")
+      ->default_str(fmt::format("{}", q[6]));
   a->add_option("--reference", e->reference, "reference positions: exact | inflate | refine")->capture_default_str();
-  a->add_option("--gate", e->gate, "chi-square gate probability per point (0: off)")->capture_default_str();
-  a->add_option("--iterations", e->iterations, "update iterations (1: EKF, >1: iterated EKF)")->capture_default_str();
-  a->add_option("--iekf-after", e->iekf_after, "with --iterations > 1: first frames updated by the plain EKF (docs/filter.md)")
+  a->add_option("--gate", f.filter.update.gate_probability, "chi-square gate probability per point (0: off)")
       ->capture_default_str();
-  a->add_option("--passes", e->filter.passes, "passes over the sequence (>1: restart from the previous pass's planes and focal)")
+  a->add_option("--iterations", f.filter.iterations, "update iterations (1: EKF, >1: iterated EKF)")->capture_default_str();
+  a->add_option("--iekf-after", f.filter.iterate_after_frames,
+                "with --iterations > 1: first frames updated by the plain EKF (docs/filter.md)")
       ->capture_default_str();
-  a->add_option("--max-planes", e->finder.max_planes, "planes kept at most")->capture_default_str();
-  a->add_option("--min-plane-tracks", e->finder.min_plane_tracks, "reference tracks a plane needs")
+  a->add_option("--passes", f.passes, "passes over the sequence (>1: restart from the previous pass's planes and focal)")
       ->capture_default_str();
-  a->add_option("--ransac-px", e->finder.ransac_px, "homography RANSAC threshold (px)")->capture_default_str();
+  a->add_option("--max-planes", e->est.finder.max_planes, "planes kept at most")->capture_default_str();
+  a->add_option("--min-plane-tracks", e->est.finder.min_plane_tracks, "reference tracks a plane needs")
+      ->capture_default_str();
+  a->add_option("--ransac-px", e->est.finder.ransac_px, "homography RANSAC threshold (px)")->capture_default_str();
   a->add_option("--plane-roi", e->plane_rois,
                 "manual planes: one polygon per plane in first-frame px, x,y,x,y,...;x,y,... (skips RANSAC)");
-  a->add_flag("!--keep-static", e->finder.reject_static, "keep planes that do not move in the image");
+  a->add_flag("!--keep-static", e->est.finder.reject_static, "keep planes that do not move in the image");
   a->add_flag("!--no-plots", e->plots, "skip the PNG/SVG plots");
-  a->add_flag("!--no-init", e->init, "start every plane frontal at the default focal guess (no homography start)");
-  a->add_option("--max-tracks-per-plane", e->filter.max_tracks_per_plane, "tracks per plane in the filter at a time (0: all)")->capture_default_str();
-  a->add_option("--normal-sd0", e->filter.normal_sd0, "initial sd of each plane's N components relative to N_Z0")->capture_default_str();
-  a->add_option("--beta-sd0", e->filter.beta_sd0, "initial sd of beta relative to beta0")->capture_default_str();
-  a->add_option("--depth0", e->filter.depth0, "start: planes frontal at this many (initial) focal lengths (scale gauge)")->capture_default_str();
-  a->add_flag("!--no-new-tracks", e->filter.add_new_tracks, "only tracks of the reference frame enter the plane models");
+  a->add_flag("!--no-init", e->est.homography_start, "start every plane frontal at the default focal guess (no homography start)");
+  a->add_option("--max-tracks-per-plane", f.max_tracks_per_plane, "tracks per plane in the filter at a time (0: all)")
+      ->capture_default_str();
+  a->add_option_function<double>("--normal-sd0", [f = &f](double v) { f->normal_sd0 = v; },
+                                 "initial sd of each plane's N components relative to N_Z0 (default: 0.1 after a "
+                                 "homography start, 1 without)");
+  a->add_option_function<double>("--beta-sd0", [e](double v) { e->beta_sd0 = v; },
+                                 "initial sd of beta relative to beta0 (default: 0.1 after a homography start, 0.3 without)");
+  a->add_option("--depth0", f.depth0, "start: planes frontal at this many (initial) focal lengths (scale gauge)")
+      ->capture_default_str();
+  a->add_flag("!--no-new-tracks", f.add_new_tracks, "only tracks of the reference frame enter the plane models");
   a->add_option("--out", e->out, "output directory")->capture_default_str();
   a->add_flag("--quiet", e->quiet, "no progress on stderr");
 }
 
 std::string finishEstimateOptions(EstimateCli* e) {
+  TrackFilterOptions& f = e->est.filter;
+  PatchPipelineOptions& pp = e->pat.patch;
   e->patches = e->model == "patches";
-  if (!e->patches && !parseTrackModel(e->model, &e->filter.model))
+  if (!e->patches && !parseTrackModel(e->model, &f.model))
     return "--model must be point, plane, planes or patches, got '" + e->model + "'";
-  if (!parsePatchCentres(e->centres, &e->patch.centres))
+  if (!parsePatchCentres(e->centres, &pp.centres))
     return "--centres must be measured, predicted, fused or state, got '" + e->centres + "'";
-  if (e->patch.centres == PatchCentres::State && e->measurement != "exact")
-    return "--centres state needs --measurement exact";
-  if (e->patch.centres == PatchCentres::State && e->patch.fused_maps)
+  if (pp.centres == PatchCentres::State && e->measurement != "exact") return "--centres state needs --measurement exact";
+  if (pp.centres == PatchCentres::State && pp.fused_maps)
     return "--centres state and --fused-maps exclude each other (the maps are already in the state)";
-  if (e->measurement == "exact") e->patch.measurement = AffineMeasurement::Exact;
-  else if (e->measurement == "instantaneous") e->patch.measurement = AffineMeasurement::Instantaneous;
+  if (e->measurement == "exact") pp.measurement = AffineMeasurement::Exact;
+  else if (e->measurement == "instantaneous") pp.measurement = AffineMeasurement::Instantaneous;
   else return "--measurement must be exact or instantaneous, got '" + e->measurement + "'";
-  if (!(e->patch.sigma_px > 0) || !(e->patch.sigma_affine > 0)) return "--patch-sigma-px and --sigma-affine must be positive";
-  if (!(e->patch.q_omega >= 0) || !(e->patch.q_trans_rel >= 0)) return "process variances must be >= 0";
-  if (e->patch.anneal_frames < 0) return "--anneal-frames must be >= 0";
-  if (!(e->filter.depth0 > 0)) return "--depth0 must be positive";
-  e->patch.focal_px = e->filter.focal_px;
-  e->patch.focal0_px = e->filter.focal0_px;
-  e->patch.depth0 = e->filter.depth0;
-  ReferenceModel rm;
-  if (!parseReferenceModel(e->reference, &rm)) return "--reference must be exact, inflate or refine";
-  e->filter.filter.reference = rm;
-  if (!(e->filter.focal_px >= 0) || !(e->filter.focal0_px >= 0)) return "--focal-px and --focal0-px must be >= 0";
-  if (!(e->filter.sigma_px > 0)) return "--sigma-px must be positive";
-  if (e->normal_sd0 == 0 || !std::isfinite(e->normal_sd0)) return "--normal-sd0 must be positive";
-  if (e->beta_sd0 < 0 && e->beta_sd0 != -1.0) return "--beta-sd0 must be >= 0";
-  if (!(e->q_trans >= 0) || !(e->q_omega >= 0) || !(e->q_beta >= 0)) return "process variances must be >= 0";
-  if (!(e->gate >= 0 && e->gate < 1)) return "--gate must be in [0, 1)";
-  if (e->iterations < 1) return "--iterations must be >= 1";
-  if (e->iekf_after < 0) return "--iekf-after must be >= 0";
-  if (e->filter.passes < 1 || e->filter.passes > 10) return "--passes must be in 1..10";
-  if (e->finder.max_planes < 1) return "--max-planes must be >= 1";
-  if (e->finder.min_plane_tracks < 5) return "--min-plane-tracks must be >= 5";
-  if (!(e->finder.ransac_px > 0)) return "--ransac-px must be positive";
-  e->filter.filter.q_motion << e->q_trans, e->q_trans, e->q_trans, e->q_omega, e->q_omega, e->q_omega, e->q_beta;
-  e->filter.filter.update.gate_probability = e->gate;
-  e->patch.gate_probability = e->gate;
-  e->filter.filter.iterations = e->iterations;
-  e->filter.filter.iterate_after_frames = e->iekf_after;
+  if (!(pp.sigma_px > 0) || !(pp.sigma_affine > 0)) return "--patch-sigma-px and --sigma-affine must be positive";
+  if (!(pp.q_omega >= 0) || !(pp.q_trans_rel >= 0)) return "process variances must be >= 0";
+  if (pp.anneal_frames < 0) return "--anneal-frames must be >= 0";
+  if (!(f.depth0 > 0)) return "--depth0 must be positive";
+  if (!parseReferenceModel(e->reference, &f.filter.reference)) return "--reference must be exact, inflate or refine";
+  if (!(f.focal_px >= 0) || !(f.focal0_px >= 0)) return "--focal-px and --focal0-px must be >= 0";
+  if (!(f.sigma_px > 0)) return "--sigma-px must be positive";
+  if (f.normal_sd0 && !(*f.normal_sd0 > 0 && std::isfinite(*f.normal_sd0))) return "--normal-sd0 must be positive";
+  if (e->beta_sd0 && !(*e->beta_sd0 >= 0 && std::isfinite(*e->beta_sd0))) return "--beta-sd0 must be >= 0";
+  for (int i = 0; i < 7; ++i)
+    if (!(f.filter.q_motion[i] >= 0)) return "process variances must be >= 0";
+  if (!(f.filter.update.gate_probability >= 0 && f.filter.update.gate_probability < 1)) return "--gate must be in [0, 1)";
+  if (f.filter.iterations < 1) return "--iterations must be >= 1";
+  if (f.filter.iterate_after_frames < 0) return "--iekf-after must be >= 0";
+  if (f.passes < 1 || f.passes > 10) return "--passes must be in 1..10";
+  if (e->est.finder.max_planes < 1) return "--max-planes must be >= 1";
+  if (e->est.finder.min_plane_tracks < 5) return "--min-plane-tracks must be >= 5";
+  if (!(e->est.finder.ransac_px > 0)) return "--ransac-px must be positive";
   if (!e->plane_rois.empty()) {
     std::stringstream ss(e->plane_rois);
     std::string poly;
     while (std::getline(ss, poly, ';')) {
       std::vector<cv::Point2f> p;
       if (auto m = parsePolygon(poly, &p); !m.empty()) return "--plane-roi: " + m;
-      e->finder.rois.push_back(p);
+      e->est.finder.rois.push_back(p);
     }
   }
+  // One flag, the chosen pipeline's option.
+  f.beta_sd0 = e->beta_sd0;
+  pp.beta_sd0 = e->beta_sd0;
+  pp.focal_px = f.focal_px;
+  pp.focal0_px = f.focal0_px;
+  pp.depth0 = f.depth0;
+  pp.gate_probability = f.filter.update.gate_probability;
+  e->pat.finder = e->est.finder;
+  e->pat.homography_start = e->est.homography_start;
   return "";
 }
 
 double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
 
-/// Plane finding + filter + report (+ overlay when `overlay_input` is set). Returns the exit code.
+std::function<void(const std::string&)> noteTo(bool quiet) {
+  if (quiet) return {};
+  return [](const std::string& m) { fmt::print(stderr, "{}\n", m); };
+}
+
+/// The pipeline (pipeline/estimate.hpp) + report (+ overlay when `overlay_input` is set). Returns the exit code.
 int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::string& overlay_input,
                       vision::FrameRange range, double t_start, bool write_tracks) {
-  vision::PlaneFinding pf;
+  EstimateResult r;
   try {
-    vision::PlaneFinderOptions fo = e.finder;
-    if (e.filter.model == TrackModel::Plane && fo.rois.empty()) fo.max_planes = 1;  // the dominant plane only
-    pf = vision::findPlanes(tracks, fo);
-  } catch (const std::exception& ex) {
-    return fail(kBadInput, ex.what());
-  }
-  const int m = pf.numPlanes();
-  if (m == 0)
-    return fail(kBadInput, fmt::format("no plane with at least {} tracks found in the reference frame (tracks: {}; "
-                                       "try --min-plane-tracks, --ransac-px or --plane-roi)",
-                                       e.finder.min_plane_tracks, tracks.frames[0].size()));
-  if (!e.quiet) {
-    fmt::print(stderr, "planes: {} accepted (pair frame {}):", m, tracks.first_frame + pf.pair_frame);
-    for (const auto& c : pf.candidates)
-      fmt::print(stderr, " [{} {} tracks, motion {:.1f} px{}]", vision::toString(c.verdict), c.members.size(),
-                 c.median_motion_px,
-                 c.same_motion_fraction >= 0 ? fmt::format(", same-motion {:.2f}", c.same_motion_fraction) : "");
-    fmt::print(stderr, "; outliers {}\n", pf.count(-1));
-  }
-  TrackFilterOptions fopt = e.filter;
-  vision::PlaneStart start;
-  if (e.init && fopt.model != TrackModel::Point) {
-    start = vision::planeStart(tracks, pf, fopt.focal_px);
-    if (start.ok) {
-      if (fopt.focal_px <= 0 && fopt.focal0_px <= 0) fopt.focal0_px = start.focal_px;
-      fopt.normal_sd0 = 0.1;
-      fopt.beta_sd0 = 0.1;
-      const int m = fopt.model == TrackModel::Plane ? 1 : static_cast<int>(start.normals.size());
-      fopt.initial_normals.assign(start.normals.begin(), start.normals.begin() + m);
-      fopt.initial_distance_ratios.assign(start.distance_ratios.begin(), start.distance_ratios.begin() + m);
-    }
-    if (!e.quiet) {
-      if (start.ok) {
-        fmt::print(stderr, "start: focal {:.0f} px from the homographies (disagreement {:.2f} deg), normals", start.focal_px,
-                   start.score);
-        for (const auto& n : start.normals) fmt::print(stderr, " ({:.2f}, {:.2f}, {:.2f})", n.x(), n.y(), n.z());
-        fmt::print(stderr, "\n");
-        if (start.at_grid_end) fmt::print(stderr, "warning: {}\n", kGridEndWarning);
-      } else {
-        fmt::print(stderr, "start: {}; planes start frontal\n", start.note);
-      }
-    }
-  }
-  if (e.normal_sd0 > 0) fopt.normal_sd0 = e.normal_sd0;
-  if (e.beta_sd0 >= 0) fopt.beta_sd0 = e.beta_sd0;
-  TrackFilterResult res;
-  try {
-    res = runTrackFilter(tracks, pf.labels, fopt, e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
+    r = estimate(tracks, e.est, noteTo(e.quiet),
+                 e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
   } catch (const std::invalid_argument& ex) {
     return fail(kBadInput, ex.what());
   } catch (const std::exception& ex) {
     return fail(kRuntimeFailure, ex.what());
   }
-  if (!res.ok())
-    return fail(kRuntimeFailure, "the filter stopped at " + res.stopped + " (no outputs written)");
+  const TrackFilterResult& res = r.online;
+  const vision::PlaneFinding& pf = r.planes;
+  if (!res.ok()) return fail(kRuntimeFailure, "the filter stopped at " + res.stopped + " (no outputs written)");
   io::EstimateReport rep;
   rep.tracks = &tracks;
   rep.labels = &pf.labels;
   rep.result = &res;
-  rep.model = e.filter.model;
+  rep.model = e.est.filter.model;
   rep.command = invocation();
   nlohmann::json cands = nlohmann::json::array();
   for (const auto& c : pf.candidates)
     cands.push_back({{"verdict", vision::toString(c.verdict)}, {"label", c.label}, {"tracks", c.members.size()},
                      {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction}});
-  if (start.ok)
-    rep.extra["start"] = startJson(start);
+  if (r.start.ok) rep.extra["start"] = startJson(r.start);
   rep.extra["plane_finding"] = {{"pair_frame", tracks.first_frame + pf.pair_frame}, {"candidates", cands},
-                                {"manual", !e.finder.rois.empty()}};
+                                {"manual", !e.est.finder.rois.empty()}};
   nlohmann::json summary;
   if (int rc = guarded([&] {
         io::AtomicFileSet files;
@@ -265,53 +230,21 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
   return 0;
 }
 
-/// The patch filter on affine patches + report (+ overlay when `overlay_input` is set).
+/// The patch pipeline (pipeline/estimate.hpp) + report (+ overlay when `overlay_input` is set).
 int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, const std::string& overlay_input,
                            vision::FrameRange range, double t_start, bool write_patches) {
-  PatchPipelineOptions po = e.patch;
-  po.beta_sd0 = e.filter.beta_sd0;
   nlohmann::json start_json;
-  if (e.init && po.focal_px <= 0 && po.focal0_px <= 0) {
-    // Focal start as for the plane models: homographies of the patch centres (as point tracks)
-    // decomposed over a focal grid (vision/plane_init.hpp). Only the focal length is taken: every
-    // patch still starts fronto-parallel, so its normal is the filter's own estimate.
-    Tracks centres;
-    centres.image = tracks.image;
-    centres.first_frame = tracks.first_frame;
-    for (const auto& f : tracks.frames) {
-      std::vector<TrackPoint> pts;
-      for (const auto& p : f) pts.push_back({p.id, p.px});
-      centres.frames.push_back(std::move(pts));
-    }
-    vision::PlaneStart start;
-    try {
-      vision::PlaneFinderOptions fo = e.finder;
-      fo.min_plane_tracks = std::min(fo.min_plane_tracks, 8);
-      const vision::PlaneFinding pf = vision::findPlanes(centres, fo);
-      if (pf.numPlanes() > 0) start = vision::planeStart(centres, pf, 0.0);
-      else start.note = "no plane among the patch centres";
-    } catch (const std::exception& ex) {
-      start.note = ex.what();
-    }
-    if (start.ok) {
-      po.focal0_px = start.focal_px;
-      po.beta_sd0 = 0.1;
-      start_json = startJson(start);
-    }
-    if (!e.quiet)
-      fmt::print(stderr, "start: {}\n",
-                 start.ok ? fmt::format("focal {:.0f} px from homographies of the patch centres{}", start.focal_px,
-                                        start.at_grid_end ? fmt::format("\nwarning: {}", kGridEndWarning) : "")
-                          : start.note + "; focal starts at max(width, height)");
-  }
-  PatchRunResult res;
+  PatchEstimateResult pr;
   try {
-    res = runPatchTracks(tracks, po, e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
+    pr = estimatePatches(tracks, e.pat, noteTo(e.quiet),
+                         e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
   } catch (const std::invalid_argument& ex) {
     return fail(kBadInput, ex.what());
   } catch (const std::exception& ex) {
     return fail(kRuntimeFailure, ex.what());
   }
+  const PatchRunResult& res = pr.run;
+  if (pr.start.ok) start_json = startJson(pr.start);
   if (!res.ok()) return fail(kRuntimeFailure, "the patch filter stopped at " + res.stopped + " (no outputs written)");
   io::PatchReport rep;
   rep.tracks = &tracks;

@@ -130,7 +130,7 @@ PatchRunResult runPatchTracks(const PatchTracks& tracks, const PatchPipelineOpti
   P0(0, 0) = P0(1, 1) = tsd * tsd;
   P0(2, 2) = std::pow(o.motion_sd0 * Z0 * beta0, 2);
   for (int j = 3; j < 6; ++j) P0(j, j) = o.motion_sd0 * o.motion_sd0;
-  P0(6, 6) = o.focal_px > 0 ? 0.0 : std::pow(o.beta_sd0 * beta0, 2);
+  P0(6, 6) = o.focal_px > 0 ? 0.0 : std::pow(o.beta_sd0.value_or(PatchPipelineOptions::kGuessBetaSd0) * beta0, 2);
   const Eigen::Matrix3d Ps0 =
       Eigen::Vector3d(o.normal_sd0 * o.normal_sd0, o.normal_sd0 * o.normal_sd0, std::pow(o.depth_rel_sd0 * g0, 2)).asDiagonal();
   for (int k = 0; k < K; ++k) {

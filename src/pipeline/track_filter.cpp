@@ -25,6 +25,7 @@ bool parseTrackModel(const std::string& s, TrackModel* m) {
 FilterOptions TrackFilterOptions::defaultFilter() {
   FilterOptions f;
   f.reference = ReferenceModel::Refine;
+  f.iterate_after_frames = 10;  // with iterations > 1 (docs/filter.md)
   return f;
 }
 
@@ -102,7 +103,9 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
   if (tracks.image.width <= 0 || tracks.image.height <= 0) throw std::invalid_argument("tracks: no image size");
   if (static_cast<int>(labels.size()) < tracks.idBound())
     throw std::invalid_argument("labels: fewer labels than tracks");
-  if (!(o.sigma_px > 0) || !(o.beta_sd0 >= 0) || !(o.normal_sd0 > 0) || !std::isfinite(o.focal_px) || !(o.depth0 > 0))
+  const double beta_sd0 = o.beta_sd0.value_or(TrackFilterOptions::kGuessBetaSd0);
+  const double normal_sd0 = o.normal_sd0.value_or(TrackFilterOptions::kFrontalNormalSd0);
+  if (!(o.sigma_px > 0) || !(beta_sd0 >= 0) || !(normal_sd0 > 0) || !std::isfinite(o.focal_px) || !(o.depth0 > 0))
     throw std::invalid_argument("estimate: options out of range (sigma, beta sd, normal sd, focal)");
   TrackFilterResult res;
   const double s = o.scale_px > 0 ? o.scale_px : std::max(tracks.image.width, tracks.image.height) / 2.0;
@@ -146,7 +149,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(n, n);
     std::vector<bool> fixed(n, false);
     x0[idx::kBeta] = beta0;
-    P0(idx::kBeta, idx::kBeta) = known_focal ? 0.0 : std::pow(o.beta_sd0 * beta0, 2);
+    P0(idx::kBeta, idx::kBeta) = known_focal ? 0.0 : std::pow(beta_sd0 * beta0, 2);
     fixed[idx::kBeta] = known_focal;
     for (int i = 7; i < n; ++i) {
       x0[i] = o.depth0 / beta0;  // every point starts at the gauge depth (as the plane models' frontal start)
@@ -249,12 +252,12 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(n, n);
     std::vector<bool> fixed(n, false);
     x0[idx::kBeta] = beta_start;
-    P0(idx::kBeta, idx::kBeta) = known_focal ? 0.0 : std::pow(o.beta_sd0 * beta_start, 2);
+    P0(idx::kBeta, idx::kBeta) = known_focal ? 0.0 : std::pow(beta_sd0 * beta_start, 2);
     fixed[idx::kBeta] = known_focal;
     for (int j = 0; j < m; ++j) {
       const int b = PlaneModel::planeIndex(j);
       x0.segment<3>(b) = N_start[j];
-      const double v = std::pow(o.normal_sd0 * std::max(N_start[j].norm(), nz0), 2);
+      const double v = std::pow(normal_sd0 * std::max(N_start[j].norm(), nz0), 2);
       P0(b, b) = P0(b + 1, b + 1) = v;
       P0(b + 2, b + 2) = j == 0 ? 0.0 : v;
     }

@@ -18,6 +18,8 @@
 #include <string>
 #include <vector>
 
+#include <optional>
+
 #include "rsfm/patch_filter.hpp"
 #include "rsfm/track/patches.hpp"
 
@@ -27,7 +29,10 @@ struct PatchPipelineOptions {
   double scale_px = 0.0;     ///< s (<= 0: max(width, height) / 2)
   double focal_px = 0.0;     ///< known focal length (px): beta fixed (<= 0: estimated)
   double focal0_px = 0.0;    ///< initial focal guess (px) (<= 0: max(width, height), ~53 deg across)
-  double beta_sd0 = 0.3;     ///< initial sd of beta relative to beta0
+  /// Initial sd of beta relative to beta0. Unset: 0.3 for a guessed focal length, 0.1 after a
+  /// homography start (estimatePatches(), pipeline/estimate.hpp).
+  std::optional<double> beta_sd0;
+  static constexpr double kGuessBetaSd0 = 0.3;
   double depth0 = 10.0;      ///< start depth of every patch in focal lengths beyond the image plane
   double normal_sd0 = 1.0;   ///< initial sd of p1, p2 of every patch
   double depth_rel_sd0 = 0.5;  ///< initial sd of p4 relative to g0

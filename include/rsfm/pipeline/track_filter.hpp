@@ -14,6 +14,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -31,9 +32,15 @@ struct TrackFilterOptions {
   double scale_px = 0.0;     ///< s, pixels per normalized unit (<= 0: max(width, height) / 2)
   double focal_px = 0.0;     ///< known focal length (px): beta fixed at s / focal_px (<= 0: estimated)
   double focal0_px = 0.0;    ///< initial focal guess (px) (<= 0: max(width, height), ~53 deg across)
-  double beta_sd0 = 0.3;     ///< initial standard deviation of beta, relative to beta0
+  /// Initial standard deviation of beta, relative to beta0. Unset: 0.3 for a guessed focal
+  /// length, 0.1 after a homography start (estimate(), pipeline/estimate.hpp).
+  std::optional<double> beta_sd0;
   double sigma_px = 0.5;     ///< tracking noise standard deviation (px)
-  double normal_sd0 = 1.0;   ///< initial sd of N_X, N_Y (and of N_Z of planes > 0), relative to N_Z0
+  /// Initial sd of N_X, N_Y (and of N_Z of planes > 0), relative to N_Z0. Unset: 1.0 for planes
+  /// started frontal, 0.1 after a homography start.
+  std::optional<double> normal_sd0;
+  /// The values used when beta_sd0 / normal_sd0 are unset and no start set them.
+  static constexpr double kGuessBetaSd0 = 0.3, kFrontalNormalSd0 = 1.0;
   /// Scale gauge and start: every plane starts frontal, meeting the optical axis depth0 / beta0
   /// beyond the image plane (N = (0, 0, beta0 / depth0)); plane 0's N_Z stays fixed there.
   double depth0 = 10.0;
@@ -64,8 +71,9 @@ struct TrackFilterOptions {
   /// to the overconfidence of updates linearized at a poor early estimate (docs/estimate.md).
   int max_tracks_per_plane = 40;
   int min_track_frames = 3;  ///< tracks seen in fewer frames are left out
-  /// Filter tuning; defaults differ from the synthetic experiments' in `reference` (Refine:
-  /// real first-frame positions are noisy) and in Q (real hand-held motion).
+  /// Filter tuning; defaults differ from FilterOptions' in `reference` (Refine: real first-frame
+  /// positions are noisy) and iterate_after_frames (10: with iterations > 1, the first frames
+  /// keep the plain update, docs/filter.md).
   FilterOptions filter = defaultFilter();
   static FilterOptions defaultFilter();
 };

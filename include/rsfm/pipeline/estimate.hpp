@@ -1,0 +1,82 @@
+#pragma once
+// The estimation pipeline on tracks (docs/estimate.md): what `rsfm estimate` and `rsfm run` run,
+// as library calls. The CLI only parses options into these structs and writes the results' files
+// (io/estimate_report.hpp, io/patch_report.hpp); a program calling estimate() on the same tracks
+// with the same options gets the same numbers (tests/test_pipeline.cpp).
+//
+//  estimate():        plane finding (vision/plane_finder.hpp) -> the homography start
+//                     (vision/plane_init.hpp) -> the recursive filter (pipeline/track_filter.hpp).
+//  estimatePatches(): the focal start from homographies of the patch centres -> Calway's patch
+//                     filter (pipeline/patch_pipeline.hpp).
+// Uses OpenCV through the vision front end: lives in rsfm_pipeline, not in rsfm_core.
+#include <functional>
+#include <stdexcept>
+#include <string>
+
+#include "rsfm/pipeline/patch_pipeline.hpp"
+#include "rsfm/pipeline/track_filter.hpp"
+#include "rsfm/track/patches.hpp"
+#include "rsfm/track/tracks.hpp"
+#include "rsfm/vision/plane_finder.hpp"
+#include "rsfm/vision/plane_init.hpp"
+
+namespace rsfm {
+
+struct EstimateOptions {
+  /// The recursive filter: model (point | plane | planes), known or initial focal length, tracking
+  /// noise, process noise, passes... Its beta_sd0 and normal_sd0, when unset, follow the start:
+  /// 0.1 after a homography start, TrackFilterOptions' guess values without one.
+  TrackFilterOptions filter;
+  /// Plane finding. The `plane` model keeps the dominant plane only (max_planes = 1) unless
+  /// manual polygons (rois) are given.
+  vision::PlaneFinderOptions finder;
+  /// Plane models: start the focal length (unless known), the normals and the relative distances
+  /// from the plane finder's homographies. false: every plane frontal at filter.focal0_px.
+  bool homography_start = true;
+};
+
+struct EstimateResult {
+  vision::PlaneFinding planes;      ///< label per track, every candidate plane, the pair frame
+  vision::PlaneStart start;         ///< the homography start (ok = false: not tried, or refused: note says why)
+  bool start_tried = false;
+  TrackFilterOptions filter_used;   ///< the filter's options after the start
+  TrackFilterResult online;         ///< the recursive filter's per-frame estimates (online.ok(): every frame)
+};
+
+/// No plane with enough tracks: bad input a user can act on (options, or another video).
+class NoPlaneFound : public std::invalid_argument {
+ public:
+  using std::invalid_argument::invalid_argument;
+};
+
+/// Runs the pipeline. `note` receives one-line progress notes (the planes found, the start; a
+/// line starting "warning: " is a warning), `progress` the filter's frames. Throws NoPlaneFound,
+/// std::invalid_argument for options out of range or too few tracks; a filter that stops on
+/// numerical trouble is reported in result.online.stopped, not thrown.
+EstimateResult estimate(const Tracks& tracks, const EstimateOptions& options,
+                        const std::function<void(const std::string&)>& note = {},
+                        const std::function<void(int, int)>& progress = {});
+
+struct PatchEstimateOptions {
+  PatchPipelineOptions patch;         ///< the patch filter (its beta_sd0, unset, follows the start)
+  vision::PlaneFinderOptions finder;  ///< for the focal start (min_plane_tracks capped at 8)
+  /// Start the focal length (unless known or given as focal0_px) from homographies of the patch
+  /// centres; every patch still starts fronto-parallel.
+  bool homography_start = true;
+};
+
+struct PatchEstimateResult {
+  vision::PlaneStart start;  ///< the focal start (ok = false: not tried or failed, note says why)
+  bool start_tried = false;
+  PatchPipelineOptions patch_used;
+  PatchRunResult run;        ///< run.ok(): every frame
+};
+
+PatchEstimateResult estimatePatches(const PatchTracks& tracks, const PatchEstimateOptions& options,
+                                    const std::function<void(const std::string&)>& note = {},
+                                    const std::function<void(int, int)>& progress = {});
+
+/// The warning printed when the homography start's focal length is at an end of its grid.
+extern const char* const kFocalGridEndWarning;
+
+}  // namespace rsfm

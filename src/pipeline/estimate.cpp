@@ -1,0 +1,109 @@
+#include "rsfm/pipeline/estimate.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+
+namespace rsfm {
+
+const char* const kFocalGridEndWarning =
+    "the start's focal length is at the end of its grid (0.3-3 x max(width, height)): the homographies do not "
+    "determine it; consider --focal-px or --focal0-px";
+
+EstimateResult estimate(const Tracks& tracks, const EstimateOptions& o,
+                        const std::function<void(const std::string&)>& note,
+                        const std::function<void(int, int)>& progress) {
+  auto say = [&](const std::string& m) {
+    if (note) note(m);
+  };
+  EstimateResult r;
+  {
+    vision::PlaneFinderOptions fo = o.finder;
+    if (o.filter.model == TrackModel::Plane && fo.rois.empty()) fo.max_planes = 1;  // the dominant plane only
+    r.planes = vision::findPlanes(tracks, fo);
+  }
+  const vision::PlaneFinding& pf = r.planes;
+  if (pf.numPlanes() == 0)
+    throw NoPlaneFound(fmt::format("no plane with at least {} tracks found in the reference frame (tracks: {}; "
+                                   "try --min-plane-tracks, --ransac-px or --plane-roi)",
+                                   o.finder.min_plane_tracks, tracks.frames.empty() ? 0 : tracks.frames[0].size()));
+  {
+    std::string line = fmt::format("planes: {} accepted (pair frame {}):", pf.numPlanes(), tracks.first_frame + pf.pair_frame);
+    for (const auto& c : pf.candidates)
+      line += fmt::format(" [{} {} tracks, motion {:.1f} px{}]", vision::toString(c.verdict), c.members.size(),
+                          c.median_motion_px,
+                          c.same_motion_fraction >= 0 ? fmt::format(", same-motion {:.2f}", c.same_motion_fraction) : "");
+    say(line + fmt::format("; outliers {}", pf.count(-1)));
+  }
+  TrackFilterOptions fopt = o.filter;
+  if (o.homography_start && fopt.model != TrackModel::Point) {
+    r.start_tried = true;
+    r.start = vision::planeStart(tracks, pf, fopt.focal_px);
+    const vision::PlaneStart& start = r.start;
+    if (start.ok) {
+      if (fopt.focal_px <= 0 && fopt.focal0_px <= 0) fopt.focal0_px = start.focal_px;
+      if (!fopt.normal_sd0) fopt.normal_sd0 = 0.1;
+      if (!fopt.beta_sd0) fopt.beta_sd0 = 0.1;
+      const int m = fopt.model == TrackModel::Plane ? 1 : static_cast<int>(start.normals.size());
+      fopt.initial_normals.assign(start.normals.begin(), start.normals.begin() + m);
+      fopt.initial_distance_ratios.assign(start.distance_ratios.begin(), start.distance_ratios.begin() + m);
+      std::string line = fmt::format("start: focal {:.0f} px from the homographies (disagreement {:.2f} deg), normals",
+                                     start.focal_px, start.score);
+      for (const auto& n : start.normals) line += fmt::format(" ({:.2f}, {:.2f}, {:.2f})", n.x(), n.y(), n.z());
+      say(line);
+      if (start.at_grid_end) say(std::string("warning: ") + kFocalGridEndWarning);
+    } else {
+      say("start: " + start.note + "; planes start frontal");
+    }
+  }
+  r.filter_used = fopt;
+  r.online = runTrackFilter(tracks, pf.labels, fopt, progress);
+  return r;
+}
+
+PatchEstimateResult estimatePatches(const PatchTracks& tracks, const PatchEstimateOptions& o,
+                                    const std::function<void(const std::string&)>& note,
+                                    const std::function<void(int, int)>& progress) {
+  PatchEstimateResult r;
+  PatchPipelineOptions po = o.patch;
+  if (o.homography_start && po.focal_px <= 0 && po.focal0_px <= 0) {
+    // Focal start as for the plane models: homographies of the patch centres (as point tracks)
+    // decomposed over a focal grid (vision/plane_init.hpp). Only the focal length is taken: every
+    // patch still starts fronto-parallel, so its normal is the filter's own estimate.
+    r.start_tried = true;
+    Tracks centres;
+    centres.image = tracks.image;
+    centres.first_frame = tracks.first_frame;
+    for (const auto& f : tracks.frames) {
+      std::vector<TrackPoint> pts;
+      for (const auto& p : f) pts.push_back({p.id, p.px});
+      centres.frames.push_back(std::move(pts));
+    }
+    vision::PlaneStart& start = r.start;
+    try {
+      vision::PlaneFinderOptions fo = o.finder;
+      fo.min_plane_tracks = std::min(fo.min_plane_tracks, 8);
+      const vision::PlaneFinding pf = vision::findPlanes(centres, fo);
+      if (pf.numPlanes() > 0)
+        start = vision::planeStart(centres, pf, 0.0);
+      else
+        start.note = "no plane among the patch centres";
+    } catch (const std::exception& ex) {
+      start.note = ex.what();
+    }
+    if (start.ok) {
+      po.focal0_px = start.focal_px;
+      if (!po.beta_sd0) po.beta_sd0 = 0.1;
+    }
+    if (note)
+      note(fmt::format("start: {}",
+                       start.ok ? fmt::format("focal {:.0f} px from homographies of the patch centres{}", start.focal_px,
+                                              start.at_grid_end ? fmt::format("\nwarning: {}", kFocalGridEndWarning) : "")
+                                : start.note + "; focal starts at max(width, height)"));
+  }
+  r.patch_used = po;
+  r.run = runPatchTracks(tracks, po, progress);
+  return r;
+}
+
+}  // namespace rsfm

@@ -1,0 +1,131 @@
+// The pipeline is a library call (pipeline/estimate.hpp): rsfm::estimate() on a tracks file's
+// tracks gives exactly the numbers `rsfm estimate` writes for that file, and every option the CLI
+// passes takes effect (--normal-sd0 and --beta-sd0 were once overwritten by the start).
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <sstream>
+
+#include "rsfm/io/estimate_report.hpp"
+#include "rsfm/io/tracks_io.hpp"
+#include "rsfm/io/tum.hpp"
+#include "rsfm/pipeline/estimate.hpp"
+#include "rsfm/sim/box_scene.hpp"
+
+namespace rsfm {
+namespace {
+namespace fs = std::filesystem;
+
+/// Tracks of the synthetic box scene (two faces) with 0.5 px noise, written to DIR/tracks.csv.
+fs::path writeBoxTracks(const fs::path& dir) {
+  std::mt19937_64 rng(5);
+  BoxSceneOptions bo;
+  bo.frames = 60;
+  const BoxScene scene = makeBoxScene(bo, rng);
+  Tracks t;
+  const double s = bo.scale_px, c = (bo.image_px - 1) / 2.0;
+  t.image = {static_cast<int>(bo.image_px), static_cast<int>(bo.image_px), c, c};
+  t.frames.resize(bo.frames + 1);
+  std::normal_distribution<double> g(0.0, 0.5);
+  for (int k = 0; k <= bo.frames; ++k)
+    for (int i = 0; i < static_cast<int>(scene.points.size()); ++i)
+      t.frames[k].push_back({i, scene.uv[k][i] * s + Eigen::Vector2d(c, c) + Eigen::Vector2d(g(rng), g(rng))});
+  fs::create_directories(dir);
+  std::ofstream(dir / "tracks.csv") << io::tracksToString(t);
+  return dir / "tracks.csv";
+}
+
+struct Cli {
+  int code = -1;
+  std::string tum;  ///< trajectory.tum's text
+  nlohmann::json summary;
+};
+
+Cli runCli(const fs::path& tracks, const fs::path& out, const std::string& extra) {
+  Cli c;
+  const std::string cmd = std::string(RSFM_CLI) + " estimate --tracks " + tracks.string() + " --out " + out.string() +
+                          " --no-plots --quiet " + extra;
+  c.code = std::system(cmd.c_str());
+  if (c.code != 0) return c;
+  std::ifstream t(out / "trajectory.tum");
+  c.tum.assign(std::istreambuf_iterator<char>(t), {});
+  std::ifstream in(out / "summary.json");
+  in >> c.summary;
+  return c;
+}
+
+void expectSame(const EstimateResult& lib, const Cli& cli) {
+  ASSERT_EQ(cli.code, 0);
+  const TrackFilterResult& r = lib.online;
+  ASSERT_TRUE(r.ok());
+  // The same trajectory text (the TUM writer prints doubles in their shortest exact form).
+  std::vector<io::TumPose> poses;
+  for (const auto& f : r.frames) {
+    io::TumPose tp;
+    tp.t = f.frame;
+    io::poseOf(f, &tp.p, &tp.q);
+    poses.push_back(tp);
+  }
+  std::ostringstream os;
+  io::writeTum(os, poses);
+  EXPECT_EQ(cli.tum, os.str());
+  EXPECT_EQ(cli.summary["focal_px"].get<double>(), r.scale_px / r.frames.back().beta);
+  EXPECT_EQ(cli.summary["planes"].size(), r.frames.back().N.size());
+}
+
+TEST(Pipeline, LibraryCallGivesTheCliNumbers) {
+  const fs::path dir = fs::temp_directory_path() / ("rsfm_test_pipeline_" + std::to_string(::getpid()));
+  const fs::path file = writeBoxTracks(dir);
+  const Tracks tracks = io::readTracks(file);  // what the CLI reads (the file's rounding included)
+  {
+    const EstimateResult lib = estimate(tracks, EstimateOptions{});
+    EXPECT_TRUE(lib.start.ok) << lib.start.note;
+    expectSame(lib, runCli(file, dir / "default", ""));
+  }
+  {
+    // Options that change the start-dependent defaults and the filter.
+    EstimateOptions o;
+    o.filter.normal_sd0 = 0.3;
+    o.filter.beta_sd0 = 0.2;
+    o.filter.passes = 3;
+    o.filter.filter.iterations = 2;
+    o.filter.filter.q_motion[3] = o.filter.filter.q_motion[4] = o.filter.filter.q_motion[5] = 4e-4;
+    const EstimateResult lib = estimate(tracks, o);
+    const Cli cli = runCli(file, dir / "options", "--normal-sd0 0.3 --beta-sd0 0.2 --passes 3 --iterations 2 --q-omega 4e-4");
+    expectSame(lib, cli);
+    // And they took effect: not the default run's numbers.
+    const EstimateResult def = estimate(tracks, EstimateOptions{});
+    EXPECT_NE(def.online.frames.back().beta, lib.online.frames.back().beta);
+    EXPECT_EQ(lib.filter_used.normal_sd0.value(), 0.3);
+    EXPECT_EQ(def.filter_used.normal_sd0.value(), 0.1);  // after the homography start
+  }
+  {
+    EstimateOptions o;
+    o.filter.model = TrackModel::Plane;
+    o.homography_start = false;
+    const EstimateResult lib = estimate(tracks, o);
+    EXPECT_FALSE(lib.start_tried);
+    EXPECT_FALSE(lib.filter_used.normal_sd0.has_value());  // frontal start: the filter's 1.0
+    expectSame(lib, runCli(file, dir / "plane", "--model plane --no-init"));
+  }
+  fs::remove_all(dir);
+}
+
+TEST(Pipeline, NoPlaneIsBadInput) {
+  Tracks t;
+  t.image = {320, 240, 159.5, 119.5};
+  t.frames.resize(5);
+  std::mt19937_64 rng(1);
+  std::uniform_real_distribution<double> u(10, 230);
+  for (int k = 0; k < 5; ++k)
+    for (int i = 0; i < 30; ++i) t.frames[k].push_back({i, Eigen::Vector2d(u(rng), u(rng))});  // noise, no plane
+  EXPECT_THROW(estimate(t, EstimateOptions{}), NoPlaneFound);
+}
+
+}  // namespace
+}  // namespace rsfm
