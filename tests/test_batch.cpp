@@ -243,6 +243,119 @@ TEST(PlaneBatchBound, NullSpacesOfPureRotationAndPureTranslation) {
   }
 }
 
+TEST(PlaneBatch, ResidualThroughTheCameraAndItsJacobians) {
+  const Eigen::Vector3d t(0.05, -0.03, 0.02), w(0.02, -0.04, 0.01), N(1.15, 0.1, 2.0);
+  const double beta = 0.9, sigma = 0.01;
+  const Eigen::Matrix3d Rb = Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix();
+  const Eigen::Vector2d ref(0.3, -0.2), z(0.31, -0.18);
+  const Eigen::Vector4d cam(0.01, -0.005, -0.2, 0.04);
+  // Observation: variables (t, omega, beta, N, ref, camera).
+  auto f = [&](const Eigen::VectorXd& p, Eigen::VectorXd* y) {
+    Eigen::Vector2d rr;
+    const Eigen::Vector4d c = p.segment<4>(12);
+    if (planeBatchResidual(p.segment<3>(0), p.segment<3>(3), Rb, p[6], p.segment<3>(7), p.segment<2>(10), z, sigma, &rr,
+                           nullptr, nullptr, nullptr, nullptr, &c, nullptr) != MeasureStatus::Ok)
+      return false;
+    *y = rr;
+    return true;
+  };
+  Eigen::VectorXd p(16);
+  p << t, w, beta, N, ref, cam;
+  Eigen::Vector2d r, Jb;
+  Eigen::Matrix<double, 2, 6> Jm;
+  Eigen::Matrix<double, 2, 3> JN;
+  Eigen::Matrix2d Ju;
+  Eigen::Matrix<double, 2, 4> Jc;
+  ASSERT_EQ(planeBatchResidual(t, w, Rb, beta, N, ref, z, sigma, &r, &Jm, &Jb, &JN, &Ju, &cam, &Jc), MeasureStatus::Ok);
+  Eigen::MatrixXd J(2, 16);
+  J << Jm, Jb, JN, Ju, Jc;
+  test::expectJacobian(f, p, J, 1e-6, "batch residual through the camera");
+  // Reference residual: variables (ref, beta, camera).
+  auto g = [&](const Eigen::VectorXd& q, Eigen::VectorXd* y) {
+    Eigen::Vector2d rr;
+    planeBatchReferenceResidual(q.head<2>(), q[2], q.tail<4>(), z, sigma, &rr, nullptr, nullptr, nullptr);
+    *y = rr;
+    return true;
+  };
+  Eigen::VectorXd q(7);
+  q << ref, beta, cam;
+  Eigen::Matrix2d Ju0;
+  Eigen::Vector2d Jb0;
+  Eigen::Matrix<double, 2, 4> Jc0;
+  planeBatchReferenceResidual(ref, beta, cam, z, sigma, &r, &Ju0, &Jb0, &Jc0);
+  Eigen::MatrixXd J0(2, 7);
+  J0 << Ju0, Jb0, Jc0;
+  test::expectJacobian(g, q, J0, 1e-6, "reference residual through the camera");
+}
+
+TEST(PlaneBatchBound, CameraAndMotionCovarianceAgainstTheDenseInverse) {
+  // A small distorted problem: the bound with the camera free and the motions' covariance,
+  // against the inverse of the full information matrix built from central differences of the
+  // residuals over every parameter (motions, beta, N but the gauge, references, camera).
+  Sequence s = makeSequence(1.0, 11, 8);
+  PlaneBatchState st = truthState(s);
+  st.camera << 0.01, -0.02, -0.15, 0.03;
+  const int F = 8, Np = static_cast<int>(s.scene.points.size());
+  for (int k = 0; k <= F; ++k)
+    for (auto& o : s.data.frames[k]) {
+      Eigen::Vector2d r;
+      if (k == 0) {
+        planeBatchReferenceResidual(st.ref[o.id], st.beta, st.camera, Eigen::Vector2d::Zero(), 1.0, &r, nullptr, nullptr, nullptr);
+      } else {
+        planeBatchResidual(st.t[k], Eigen::Vector3d::Zero(), st.R[k], st.beta, st.N[0], st.ref[o.id], Eigen::Vector2d::Zero(),
+                           1.0, &r, nullptr, nullptr, nullptr, nullptr, &st.camera, nullptr);
+      }
+      o.uv = r;  // exact observations
+    }
+  PlaneBatchBoundOptions bo;
+  bo.camera_free = {true, true, true, true};
+  bo.motion_covariance = true;
+  const PlaneBatchBound b = planeBatchBound(s.data, st, bo);
+  ASSERT_TRUE(b.ok) << b.message;
+  EXPECT_EQ(b.null_dim, 0);
+  // Parameters: motions 6F, beta, N_X, N_Y (N_Z is the gauge), refs 2Np, camera 4.
+  const int n = 6 * F + 3 + 2 * Np + 4;
+  auto residuals = [&](const Eigen::VectorXd& p, Eigen::VectorXd* y) {
+    std::vector<double> out;
+    const double beta = p[6 * F];
+    const Eigen::Vector3d N(p[6 * F + 1], p[6 * F + 2], st.N[0].z());
+    const Eigen::Vector4d cam = p.tail<4>();
+    for (int k = 0; k <= F; ++k)
+      for (const auto& o : s.data.frames[k]) {
+        const Eigen::Vector2d ref = p.segment<2>(6 * F + 3 + 2 * o.id);
+        Eigen::Vector2d r;
+        if (k == 0) {
+          planeBatchReferenceResidual(ref, beta, cam, o.uv, s.data.sigma_uv, &r, nullptr, nullptr, nullptr);
+        } else if (planeBatchResidual(p.segment<3>(6 * (k - 1)), p.segment<3>(6 * (k - 1) + 3), st.R[k], beta, N, ref, o.uv,
+                                      s.data.sigma_uv, &r, nullptr, nullptr, nullptr, nullptr, &cam, nullptr) != MeasureStatus::Ok) {
+          return false;
+        }
+        out.push_back(r[0]);
+        out.push_back(r[1]);
+      }
+    *y = Eigen::Map<Eigen::VectorXd>(out.data(), out.size());
+    return true;
+  };
+  Eigen::VectorXd p0(n);
+  for (int k = 1; k <= F; ++k) p0.segment<6>(6 * (k - 1)) << st.t[k], Eigen::Vector3d::Zero();
+  p0[6 * F] = st.beta;
+  p0[6 * F + 1] = st.N[0].x();
+  p0[6 * F + 2] = st.N[0].y();
+  for (int i = 0; i < Np; ++i) p0.segment<2>(6 * F + 3 + 2 * i) = st.ref[i];
+  p0.tail<4>() = st.camera;
+  Eigen::VectorXd y0;
+  ASSERT_TRUE(residuals(p0, &y0));
+  const test::JacobianCheck numeric = test::centralDifference(residuals, p0, Eigen::MatrixXd::Zero(y0.size(), n), 1e-6);
+  const Eigen::MatrixXd C = (numeric.numeric.transpose() * numeric.numeric).inverse();
+  EXPECT_NEAR(b.var_beta / C(6 * F, 6 * F), 1.0, 1e-4);
+  for (int a = 0; a < 4; ++a)
+    for (int c = 0; c < 4; ++c)
+      EXPECT_NEAR(b.cov_camera(a, c), C(n - 4 + a, n - 4 + c), 1e-4 * std::sqrt(C(n - 4 + a, n - 4 + a) * C(n - 4 + c, n - 4 + c)));
+  for (int k : {1, 4, 8})
+    for (int a = 0; a < 6; ++a)
+      EXPECT_NEAR(b.cov_motion[k](a, a) / C(6 * (k - 1) + a, 6 * (k - 1) + a), 1.0, 1e-4) << "frame " << k << " component " << a;
+}
+
 TEST(PlaneBatch, RejectsInconsistentSizes) {
   PlaneBatchData d;
   d.frames.resize(3);

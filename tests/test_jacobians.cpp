@@ -7,6 +7,7 @@
 #include "jacobian_checker.hpp"
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/models/point_model.hpp"
+#include "rsfm/models/radial_camera.hpp"
 #include "rsfm/rotation.hpp"
 
 namespace rsfm {
@@ -260,6 +261,42 @@ TEST(ReferenceJacobian, PointAndPlaneModels) {
   // omega = 0, identity: the plane model's reference Jacobian is the plane-induced homography's.
   const auto x0 = planeState({0, 0, 0}, Eigen::Vector3d::Zero(), 1.0, {1.15, 0.1, 2.0});
   checkReferenceJacobian(lm, x0, Eigen::Matrix3d::Identity(), 2, "plane model reference, no motion");
+}
+
+// ---- the image-side camera of the refinement (models/radial_camera.hpp) ----
+void checkRadialCamera(const Eigen::Vector4d& cam, double beta, const Eigen::Vector2d& h, const std::string& what) {
+  // Variables (h_x, h_y, beta, dc_x, dc_y, k1, k2).
+  auto f = [](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+    *y = RadialCamera::apply(x.tail<4>(), x[2], x.head<2>());
+    return true;
+  };
+  Eigen::VectorXd x(7);
+  x << h, beta, cam;
+  Eigen::Matrix2d Jh;
+  Eigen::Vector2d Jb;
+  Eigen::Matrix<double, 2, 4> Jc;
+  RadialCamera::apply(cam, beta, h, &Jh, &Jb, &Jc);
+  Eigen::MatrixXd J(2, 7);
+  J << Jh, Jb, Jc;
+  expectJacobian(f, x, J, 1e-7, what);
+  // The inverse recovers h.
+  Eigen::Vector2d back;
+  ASSERT_TRUE(RadialCamera::invert(cam, beta, RadialCamera::apply(cam, beta, h), &back)) << what;
+  EXPECT_LT((back - h).norm(), 1e-12 * std::max(1.0, h.norm())) << what;
+}
+
+TEST(RadialCameraJacobian, Barrel) { checkRadialCamera({0.01, -0.02, -0.25, 0.05}, 1.3, {0.4, -0.3}, "barrel"); }
+TEST(RadialCameraJacobian, Pincushion) { checkRadialCamera({0.0, 0.0, 0.1, 0.05}, 0.8, {-0.6, 0.5}, "pincushion"); }
+TEST(RadialCameraJacobian, AtTheCentreAndWithoutDistortion) {
+  checkRadialCamera({0.02, 0.01, -0.2, 0.0}, 1.0, {0.0, 0.0}, "principal point");
+  checkRadialCamera(Eigen::Vector4d::Zero(), 1.0, {0.3, 0.2}, "no distortion (k derivatives still needed)");
+  // Without distortion the prediction is h + dc exactly (the experiments' arithmetic).
+  const Eigen::Vector2d h(0.123456789, -0.987654321);
+  EXPECT_EQ(RadialCamera::apply(Eigen::Vector4d::Zero(), 0.7, h), h);
+}
+TEST(RadialCameraJacobian, NearTheFold) {
+  // k1 = -0.25: the radial map folds at r = 1.155 (pinhole units); just inside it.
+  checkRadialCamera({0.0, 0.0, -0.25, 0.0}, 1.0, {0.8, 0.75}, "near the fold");
 }
 
 TEST(Models, InvalidRotationIsReported) {

@@ -3,11 +3,13 @@
 #include <ceres/ceres.h>
 #include <glog/logging.h>
 
+#include <algorithm>
 #include <memory>
 #include <mutex>
 
 #include "rsfm/camera.hpp"
 #include "rsfm/models/plane_model.hpp"
+#include "rsfm/models/radial_camera.hpp"
 #include "rsfm/rotation.hpp"
 
 namespace rsfm {
@@ -17,7 +19,8 @@ MeasureStatus planeBatchResidual(const Eigen::Vector3d& t, const Eigen::Vector3d
                                  const Eigen::Vector3d& N, const Eigen::Vector2d& ref,
                                  const Eigen::Vector2d& z, double sigma, Eigen::Vector2d* r,
                                  Eigen::Matrix<double, 2, 6>* J_motion, Eigen::Vector2d* J_beta,
-                                 Eigen::Matrix<double, 2, 3>* J_N, Eigen::Matrix2d* J_ref) {
+                                 Eigen::Matrix<double, 2, 3>* J_N, Eigen::Matrix2d* J_ref,
+                                 const Eigen::Vector4d* camera, Eigen::Matrix<double, 2, 4>* J_camera) {
   Eigen::Matrix<double, 7, 1> x;
   x << t, omega, beta;
   const MotionContext m = MotionContext::fromState(Eigen::VectorXd(x), R_base);
@@ -32,28 +35,51 @@ MeasureStatus planeBatchResidual(const Eigen::Vector3d& t, const Eigen::Vector3d
   s = projectWithJacobian(m, p, dpb, &h, &Hm, &dhdp);
   if (s != MeasureStatus::Ok) return s;
   const double w = 1.0 / sigma;
-  *r = (h - z) * w;
-  if (J_motion) *J_motion = Hm.leftCols<6>() * w;
-  if (J_beta) *J_beta = Hm.col(6) * w;
-  if (J_N) *J_N = dhdp * dpN * w;
-  if (J_ref) *J_ref = dhdp * dpu * w;
+  if (!camera) {
+    *r = (h - z) * w;
+    if (J_motion) *J_motion = Hm.leftCols<6>() * w;
+    if (J_beta) *J_beta = Hm.col(6) * w;
+    if (J_N) *J_N = dhdp * dpN * w;
+    if (J_ref) *J_ref = dhdp * dpu * w;
+    return MeasureStatus::Ok;
+  }
+  Eigen::Matrix2d Jh;
+  Eigen::Vector2d Jb;
+  const Eigen::Vector2d u = RadialCamera::apply(*camera, beta, h, &Jh, &Jb, J_camera);
+  *r = (u - z) * w;
+  if (J_motion) *J_motion = Jh * Hm.leftCols<6>() * w;
+  if (J_beta) *J_beta = (Jh * Hm.col(6) + Jb) * w;
+  if (J_N) *J_N = Jh * dhdp * dpN * w;
+  if (J_ref) *J_ref = Jh * dhdp * dpu * w;
+  if (J_camera) *J_camera *= w;
   return MeasureStatus::Ok;
+}
+
+void planeBatchReferenceResidual(const Eigen::Vector2d& ref, double beta, const Eigen::Vector4d& camera,
+                                 const Eigen::Vector2d& z, double sigma, Eigen::Vector2d* r, Eigen::Matrix2d* J_ref,
+                                 Eigen::Vector2d* J_beta, Eigen::Matrix<double, 2, 4>* J_camera) {
+  const double w = 1.0 / sigma;
+  *r = (RadialCamera::apply(camera, beta, ref, J_ref, J_beta, J_camera) - z) * w;
+  if (J_ref) *J_ref *= w;
+  if (J_beta) *J_beta *= w;
+  if (J_camera) *J_camera *= w;
 }
 
 namespace {
 
-/// One observation at frame k >= 1. Parameter blocks: motion (6), beta (1), N (3)[, ref (2)].
+/// One observation at frame k >= 1. Parameter blocks: motion (6), beta (1), N (3)[, ref (2)][, camera (4)].
 class ObservationCost final : public ceres::CostFunction {
  public:
   ObservationCost(const Eigen::Matrix3d& R_base, const Eigen::Vector2d& z, double sigma,
-                  const Eigen::Vector2d* fixed_ref)
-      : R_base_(R_base), z_(z), sigma_(sigma), has_fixed_ref_(fixed_ref != nullptr) {
+                  const Eigen::Vector2d* fixed_ref, bool camera = false)
+      : R_base_(R_base), z_(z), sigma_(sigma), has_fixed_ref_(fixed_ref != nullptr), camera_(camera) {
     if (fixed_ref) fixed_ref_ = *fixed_ref;
     set_num_residuals(2);
     mutable_parameter_block_sizes()->push_back(6);
     mutable_parameter_block_sizes()->push_back(1);
     mutable_parameter_block_sizes()->push_back(3);
     if (!has_fixed_ref_) mutable_parameter_block_sizes()->push_back(2);
+    if (camera_) mutable_parameter_block_sizes()->push_back(4);
   }
 
   bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
@@ -67,10 +93,15 @@ class ObservationCost final : public ceres::CostFunction {
     Eigen::Vector2d Jb;
     Eigen::Matrix<double, 2, 3> JN;
     Eigen::Matrix2d Ju;
+    Eigen::Matrix<double, 2, 4> Jc;
     const bool want = jacobians != nullptr;
+    const int cam_block = has_fixed_ref_ ? 3 : 4;
+    Eigen::Vector4d cam = Eigen::Vector4d::Zero();
+    if (camera_) cam = Eigen::Map<const Eigen::Vector4d>(params[cam_block]);
     if (planeBatchResidual(motion.head<3>(), motion.tail<3>(), R_base_, beta, N, ref, z_, sigma_,
                            &r, want ? &Jm : nullptr, want ? &Jb : nullptr, want ? &JN : nullptr,
-                           want ? &Ju : nullptr) != MeasureStatus::Ok)
+                           want ? &Ju : nullptr, camera_ ? &cam : nullptr,
+                           want && camera_ ? &Jc : nullptr) != MeasureStatus::Ok)
       return false;  // Ceres treats the step as unsuccessful and shrinks it
     residuals[0] = r[0];
     residuals[1] = r[1];
@@ -94,6 +125,10 @@ class ObservationCost final : public ceres::CostFunction {
         Eigen::Map<M22> J3(jacobians[3]);
         J3 = Ju;
       }
+      if (camera_ && jacobians[cam_block]) {
+        Eigen::Map<Eigen::Matrix<double, 2, 4, Eigen::RowMajor>> J4(jacobians[cam_block]);
+        J4 = Jc;
+      }
     }
     return true;
   }
@@ -103,7 +138,43 @@ class ObservationCost final : public ceres::CostFunction {
   Eigen::Vector2d z_;
   double sigma_;
   bool has_fixed_ref_;
+  bool camera_;
   Eigen::Vector2d fixed_ref_ = Eigen::Vector2d::Zero();
+};
+
+/// Reference-frame observation through the camera: blocks ref (2), beta (1), camera (4).
+class ReferenceCameraCost final : public ceres::SizedCostFunction<2, 2, 1, 4> {
+ public:
+  ReferenceCameraCost(const Eigen::Vector2d& z, double sigma) : z_(z), sigma_(sigma) {}
+  bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
+    const Eigen::Vector2d ref(params[0][0], params[0][1]);
+    const Eigen::Map<const Eigen::Vector4d> cam(params[2]);
+    Eigen::Vector2d r, Jb;
+    Eigen::Matrix2d Ju;
+    Eigen::Matrix<double, 2, 4> Jc;
+    planeBatchReferenceResidual(ref, params[1][0], cam, z_, sigma_, &r, &Ju, &Jb, &Jc);
+    residuals[0] = r[0];
+    residuals[1] = r[1];
+    if (jacobians) {
+      if (jacobians[0]) {
+        Eigen::Map<Eigen::Matrix<double, 2, 2, Eigen::RowMajor>> J0(jacobians[0]);
+        J0 = Ju;
+      }
+      if (jacobians[1]) {
+        Eigen::Map<Eigen::Vector2d> J1(jacobians[1]);
+        J1 = Jb;
+      }
+      if (jacobians[2]) {
+        Eigen::Map<Eigen::Matrix<double, 2, 4, Eigen::RowMajor>> J2(jacobians[2]);
+        J2 = Jc;
+      }
+    }
+    return true;
+  }
+
+ private:
+  Eigen::Vector2d z_;
+  double sigma_;
 };
 
 /// Reference-frame observation of a point whose reference position is a parameter.
@@ -162,8 +233,16 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   double beta = start.beta;
   std::vector<Eigen::Vector3d> N = start.N;
   std::vector<Eigen::Vector2d> ref = start.ref;
+  Eigen::Vector4d camera = start.camera;
+  const bool use_camera = std::any_of(options.camera_free.begin(), options.camera_free.end(), [](bool b) { return b; }) ||
+                          !camera.isZero(0.0);
+  ceres::LossFunction* loss = nullptr;  // owned by the problem (one shared instance)
+  if (options.loss == PlaneBatchOptions::Loss::Huber) loss = new ceres::HuberLoss(options.loss_scale);
+  if (options.loss == PlaneBatchOptions::Loss::Cauchy) loss = new ceres::CauchyLoss(options.loss_scale);
 
   ceres::Problem::Options po;
+  po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  std::unique_ptr<ceres::LossFunction> loss_owner(loss);
   ceres::Problem problem(po);
   for (int k = 1; k <= F; ++k) problem.AddParameterBlock(motion[k].data(), 6);
   problem.AddParameterBlock(&beta, 1);
@@ -172,12 +251,24 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
     if (j == data.gauge_plane)
       problem.SetManifold(N[j].data(), new ceres::SubsetManifold(3, {data.gauge_component}));
   }
-  std::vector<bool> ref_used(P, false);
+  if (use_camera) {
+    problem.AddParameterBlock(camera.data(), 4);
+    std::vector<int> held;
+    for (int c = 0; c < 4; ++c)
+      if (!options.camera_free[c]) held.push_back(c);
+    if (held.size() == 4)
+      problem.SetParameterBlockConstant(camera.data());
+    else if (!held.empty())
+      problem.SetManifold(camera.data(), new ceres::SubsetManifold(4, held));
+  }
   if (options.estimate_references) {
     for (const Observation& o : data.frames[0]) {
       if (o.id < 0 || o.id >= P) continue;
-      problem.AddResidualBlock(new ReferenceCost(o.uv, data.sigma_uv), nullptr, ref[o.id].data());
-      ref_used[o.id] = true;
+      if (use_camera)
+        problem.AddResidualBlock(new ReferenceCameraCost(o.uv, data.sigma_uv), loss, ref[o.id].data(), &beta,
+                                 camera.data());
+      else
+        problem.AddResidualBlock(new ReferenceCost(o.uv, data.sigma_uv), loss, ref[o.id].data());
       ++res.residuals;
     }
   }
@@ -185,14 +276,12 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
     for (const Observation& o : data.frames[k]) {
       if (o.id < 0 || o.id >= P) continue;
       const int l = data.labels[o.id];
-      if (options.estimate_references) {
-        if (!ref_used[o.id]) continue;  // no reference observation: cannot be anchored
-        problem.AddResidualBlock(new ObservationCost(start.R[k], o.uv, data.sigma_uv, nullptr),
-                                 nullptr, motion[k].data(), &beta, N[l].data(), ref[o.id].data());
-      } else {
-        problem.AddResidualBlock(new ObservationCost(start.R[k], o.uv, data.sigma_uv, &ref[o.id]),
-                                 nullptr, motion[k].data(), &beta, N[l].data());
-      }
+      std::vector<double*> blocks{motion[k].data(), &beta, N[l].data()};
+      if (options.estimate_references) blocks.push_back(ref[o.id].data());
+      if (use_camera) blocks.push_back(camera.data());
+      problem.AddResidualBlock(
+          new ObservationCost(start.R[k], o.uv, data.sigma_uv, options.estimate_references ? nullptr : &ref[o.id], use_camera),
+          loss, blocks);
       ++res.residuals;
     }
 
@@ -227,6 +316,7 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   res.state.beta = beta;
   res.state.N = N;
   res.state.ref = ref;
+  res.state.camera = camera;
 
   if (options.compute_covariance && res.converged) {
     ceres::Covariance::Options co;

@@ -10,7 +10,27 @@
 
 namespace rsfm {
 
-PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchState& at) {
+bool PlaneBatchBound::estimable(double g_beta, const std::vector<Eigen::Vector3d>& g_N, const Eigen::Vector4d& g_camera) const {
+  if (!ok) return false;
+  const int n = static_cast<int>(scale.size());
+  Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
+  g[beta_index] = g_beta;
+  for (std::size_t j = 0; j < g_N.size(); ++j)
+    for (int a = 0; a < 3; ++a)
+      if (N_index[3 * j + a] >= 0) g[N_index[3 * j + a]] = g_N[j][a];
+  for (int c = 0; c < 4; ++c) {
+    if (camera_index[c] >= 0)
+      g[camera_index[c]] = g_camera[c];
+    else if (g_camera[c] != 0)
+      return false;  // a held component is not a parameter
+  }
+  if (g.norm() == 0) return true;
+  if (null_scaled.cols() == 0) return true;
+  const Eigen::VectorXd gs = scale.cwiseProduct(g);
+  return (null_scaled.transpose() * gs).norm() <= 1e-6 * gs.norm();
+}
+
+PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchState& at, const PlaneBatchBoundOptions& opt) {
   PlaneBatchBound out;
   const int F = static_cast<int>(data.frames.size()) - 1;
   const int P = static_cast<int>(data.labels.size());
@@ -21,29 +41,75 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     out.message = "bound: inconsistent problem sizes";
     return out;
   }
-  // Kept parameters: refs (2P), beta (1), the planes (3m minus the gauge component).
+  const bool use_camera =
+      std::any_of(opt.camera_free.begin(), opt.camera_free.end(), [](bool b) { return b; }) || !at.camera.isZero(0.0);
+  const Eigen::Vector4d* cam = use_camera ? &at.camera : nullptr;
+  // Kept parameters: refs (2P), beta (1), the planes (3m minus the gauge component), the free
+  // camera components.
   const int iBeta = 2 * P;
-  std::vector<int> iN(3 * m, -1);
+  out.beta_index = iBeta;
+  out.N_index.assign(3 * m, -1);
   int n = iBeta + 1;
   for (int j = 0; j < m; ++j)
     for (int c = 0; c < 3; ++c)
-      if (!(j == data.gauge_plane && c == data.gauge_component)) iN[3 * j + c] = n++;
+      if (!(j == data.gauge_plane && c == data.gauge_component)) out.N_index[3 * j + c] = n++;
+  for (int c = 0; c < 4; ++c)
+    if (opt.camera_free[c]) out.camera_index[c] = n++;
+  const std::vector<int>& iN = out.N_index;
+  const std::array<int, 4>& iC = out.camera_index;
   out.parameters = n;
   Eigen::MatrixXd S = Eigen::MatrixXd::Zero(n, n);
-  // Frame 0: reference residuals (ref - z) / sigma.
-  const double w2 = 1.0 / (data.sigma_uv * data.sigma_uv);
-  for (const Observation& o : data.frames[0])
-    if (o.id >= 0 && o.id < P) S.block<2, 2>(2 * o.id, 2 * o.id) += w2 * Eigen::Matrix2d::Identity();
+  // Frame 0: reference residuals (RadialCamera(ref) - z) / sigma.
+  for (const Observation& o : data.frames[0]) {
+    if (o.id < 0 || o.id >= P) continue;
+    Eigen::Vector2d r, Jb;
+    Eigen::Matrix2d Ju;
+    Eigen::Matrix<double, 2, 4> Jc;
+    planeBatchReferenceResidual(at.ref[o.id], at.beta, at.camera, o.uv, data.sigma_uv, &r, &Ju, &Jb, &Jc);
+    int idx[7];
+    Eigen::Matrix<double, 2, 7> J;
+    int q = 0;
+    for (int a = 0; a < 2; ++a) {
+      idx[q] = 2 * o.id + a;
+      J.col(q++) = Ju.col(a);
+    }
+    if (use_camera) {
+      idx[q] = iBeta;
+      J.col(q++) = Jb;
+      for (int c = 0; c < 4; ++c)
+        if (iC[c] >= 0) {
+          idx[q] = iC[c];
+          J.col(q++) = Jc.col(c);
+        }
+    }
+    const Eigen::MatrixXd JtJ = J.leftCols(q).transpose() * J.leftCols(q);
+    for (int a = 0; a < q; ++a)
+      for (int b = 0; b < q; ++b) S(idx[a], idx[b]) += JtJ(a, b);
+  }
   // Frames k >= 1: accumulate the frame's block [motion (6) | kept columns it touches], then
   // eliminate its motion (Schur complement) into S.
+  struct FrameBlock {
+    std::vector<int> cols;
+    Eigen::MatrixXd Hmc;
+    Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt;
+  };
+  std::vector<FrameBlock> blocks(opt.motion_covariance ? F + 1 : 0);
   std::vector<int> cols;
   for (int k = 1; k <= F; ++k) {
     const auto& obs = data.frames[k];
+    auto skip = [&](const std::string& why) {
+      if (!opt.skip_undetermined_frames) {
+        out.message = fmt::format("bound: frame {} {}", k, why);
+        return false;
+      }
+      out.skipped_frames.push_back(k);
+      return true;
+    };
     if (obs.size() < 4) {
-      out.message = fmt::format("bound: frame {} has {} observations (its motion needs >= 4)", k, obs.size());
-      return out;
+      if (!skip(fmt::format("has {} observations (its motion needs >= 4)", obs.size()))) return out;
+      continue;
     }
-    // Columns of this frame: beta, its planes' kept components, its points' refs.
+    // Columns of this frame: beta, its planes' kept components, its points' refs, the camera.
     cols.assign(1, iBeta);
     std::vector<char> plane_in(m, 0);
     for (const Observation& o : obs) plane_in[data.labels[o.id]] = 1;
@@ -55,6 +121,8 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       cols.push_back(2 * o.id);
       cols.push_back(2 * o.id + 1);
     }
+    for (int c = 0; c < 4; ++c)
+      if (iC[c] >= 0) cols.push_back(iC[c]);
     std::sort(cols.begin(), cols.end());
     cols.erase(std::unique(cols.begin(), cols.end()), cols.end());
     const int c = static_cast<int>(cols.size());
@@ -68,14 +136,15 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       Eigen::Matrix<double, 2, 6> Jm;
       Eigen::Matrix<double, 2, 3> JN;
       Eigen::Matrix2d Ju;
+      Eigen::Matrix<double, 2, 4> Jcam;
       if (planeBatchResidual(at.t[k], Eigen::Vector3d::Zero(), at.R[k], at.beta, at.N[l], at.ref[o.id], o.uv,
-                             data.sigma_uv, &r, &Jm, &Jb, &JN, &Ju) != MeasureStatus::Ok) {
+                             data.sigma_uv, &r, &Jm, &Jb, &JN, &Ju, cam, cam ? &Jcam : nullptr) != MeasureStatus::Ok) {
         out.message = fmt::format("bound: point {} cannot be projected at frame {}", o.id, k);
         return out;
       }
       // The observation's kept columns (local indices) and their Jacobian.
-      int idx[6];
-      Eigen::Matrix<double, 2, 6> Jc;
+      int idx[10];
+      Eigen::Matrix<double, 2, 10> Jc;
       int q = 0;
       idx[q] = local(iBeta);
       Jc.col(q++) = Jb;
@@ -88,6 +157,11 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
         idx[q] = local(2 * o.id + a);
         Jc.col(q++) = Ju.col(a);
       }
+      for (int a = 0; a < 4; ++a)
+        if (iC[a] >= 0) {
+          idx[q] = local(iC[a]);
+          Jc.col(q++) = Jcam.col(a);
+        }
       Hmm += Jm.transpose() * Jm;
       const Eigen::MatrixXd JmtJc = Jm.transpose() * Jc.leftCols(q);
       const Eigen::MatrixXd JctJc = Jc.leftCols(q).transpose() * Jc.leftCols(q);
@@ -96,18 +170,19 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
         for (int b = 0; b < q; ++b) Hcc(idx[a], idx[b]) += JctJc(a, b);
       }
     }
-    const Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(Hmm);
+    Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(Hmm);
     if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 1e-12 * ldlt.vectorD().maxCoeff())) {
-      out.message = fmt::format("bound: the motion of frame {} is not determined by its observations", k);
-      return out;
+      if (!skip("has a motion its observations do not determine")) return out;
+      continue;
     }
     const Eigen::MatrixXd red = Hcc - Hmc.transpose() * ldlt.solve(Hmc);
     for (int a = 0; a < c; ++a)
       for (int b = 0; b < c; ++b) S(cols[a], cols[b]) += red(a, b);
+    if (opt.motion_covariance) blocks[k] = {cols, Hmc, ldlt};
   }
-  // Null space and pseudo-inverse. Scale to unit diagonal first (parameters differ in units).
-  // A parameter whose information is negligible against the largest (a plane under pure rotation:
-  // only rounding) keeps the largest's scale, so that it shows in the null space.
+  // Null space and pseudo-inverse, on the matrix scaled to unit diagonal (parameters differ in
+  // units). A parameter whose information is negligible against the largest (a plane under pure
+  // rotation: only rounding) keeps the largest's scale, so that it shows in the null space.
   const double dmax = std::max(1e-300, S.diagonal().maxCoeff());
   Eigen::VectorXd d(n);
   for (int i = 0; i < n; ++i) d[i] = 1.0 / std::sqrt(S(i, i) > 1e-12 * dmax ? S(i, i) : dmax);
@@ -119,53 +194,73 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
   }
   const Eigen::VectorXd& lam = es.eigenvalues();
   const double tol = 1e-10 * std::max(1e-300, lam.maxCoeff());
-  Eigen::MatrixXd Vnull(n, 0);
   Eigen::MatrixXd pinv = Eigen::MatrixXd::Zero(n, n);
+  std::vector<int> null_cols;
   for (int i = 0; i < n; ++i) {
-    const Eigen::VectorXd v = es.eigenvectors().col(i);
     if (lam[i] <= tol) {
-      Vnull.conservativeResize(n, Vnull.cols() + 1);
-      Vnull.col(Vnull.cols() - 1) = v;
+      null_cols.push_back(i);
     } else {
-      pinv += v * v.transpose() / lam[i];
+      const Eigen::VectorXd v = es.eigenvectors().col(i);
+      pinv.noalias() += v * v.transpose() / lam[i];
     }
   }
-  out.null_dim = static_cast<int>(Vnull.cols());
-  // Back to the original units: cov = D pinv D.
-  const Eigen::MatrixXd cov = d.asDiagonal() * pinv * d.asDiagonal();
-  // A functional g (gradient in original units) is estimable when D^-1 ... in scaled units its
-  // gradient is D g; estimable iff D g is orthogonal to the scaled null space.
-  auto estimable = [&](const Eigen::VectorXd& g) {
-    if (Vnull.cols() == 0) return true;
-    const Eigen::VectorXd gs = d.cwiseProduct(g);
-    return (Vnull.transpose() * gs).norm() <= 1e-6 * gs.norm();
-  };
-  {
-    Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
-    g[iBeta] = 1;
-    out.beta_estimable = estimable(g);
-    out.var_beta = cov(iBeta, iBeta);
-  }
+  out.null_dim = static_cast<int>(null_cols.size());
+  out.null_scaled.resize(n, out.null_dim);
+  for (int i = 0; i < out.null_dim; ++i) out.null_scaled.col(i) = es.eigenvectors().col(null_cols[i]);
+  out.scale = d;
+  out.cov = d.asDiagonal() * pinv * d.asDiagonal();  // back to the original units
+  out.ok = true;
+  const Eigen::MatrixXd& cov = out.cov;
+  out.beta_estimable = out.estimable(1.0, {}, Eigen::Vector4d::Zero());
+  out.var_beta = cov(iBeta, iBeta);
   for (int j = 0; j < m; ++j) {
     Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
-    for (int a = 0; a < 3; ++a)
+    Eigen::Vector3d cb = Eigen::Vector3d::Zero();
+    for (int a = 0; a < 3; ++a) {
+      if (iN[3 * j + a] < 0) continue;
+      cb[a] = cov(iBeta, iN[3 * j + a]);
       for (int b = 0; b < 3; ++b)
-        if (iN[3 * j + a] >= 0 && iN[3 * j + b] >= 0) C(a, b) = cov(iN[3 * j + a], iN[3 * j + b]);
+        if (iN[3 * j + b] >= 0) C(a, b) = cov(iN[3 * j + a], iN[3 * j + b]);
+    }
     out.cov_N.push_back(C);
-    // The direction's two tangent functionals: rows of (I - n n^T) / |N| on the kept components.
+    out.cov_beta_N.push_back(cb);
+    // The direction's tangent functionals: rows of (I - n n^T) / |N|.
     const Eigen::Vector3d Nj = at.N[j], nj = Nj.normalized();
     const Eigen::Matrix3d J = (Eigen::Matrix3d::Identity() - nj * nj.transpose()) / Nj.norm();
     bool ok = true;
     for (int row = 0; row < 3 && ok; ++row) {
-      Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
-      for (int a = 0; a < 3; ++a)
-        if (iN[3 * j + a] >= 0) g[iN[3 * j + a]] = J(row, a);
-      if (g.norm() > 0) ok = estimable(g);
+      std::vector<Eigen::Vector3d> g(m, Eigen::Vector3d::Zero());
+      g[j] = J.row(row).transpose();
+      ok = out.estimable(0.0, g, Eigen::Vector4d::Zero());
     }
     out.normal_estimable.push_back(ok);
   }
-  out.ok = true;
-  out.message = fmt::format("bound: {} parameters after eliminating {} motions, null space of dimension {}", n, F,
+  for (int c = 0; c < 4; ++c) {
+    if (iC[c] < 0) continue;
+    Eigen::Vector4d g = Eigen::Vector4d::Zero();
+    g[c] = 1;
+    out.camera_estimable[c] = out.estimable(0.0, {}, g);
+    for (int b = 0; b < 4; ++b)
+      if (iC[b] >= 0) out.cov_camera(c, b) = cov(iC[c], iC[b]);
+  }
+  if (opt.motion_covariance) {
+    // cov(m_k) = H_kk^-1 + H_kk^-1 H_kc cov_c H_ck H_kk^-1 (the eliminated block's marginal).
+    out.cov_motion.assign(F + 1, Eigen::Matrix<double, 6, 6>::Zero());
+    for (int k = 1; k <= F; ++k) {
+      const FrameBlock& b = blocks[k];
+      if (b.cols.empty()) continue;
+      const int c = static_cast<int>(b.cols.size());
+      Eigen::MatrixXd Cc(c, c);
+      for (int a = 0; a < c; ++a)
+        for (int e = 0; e < c; ++e) Cc(a, e) = cov(b.cols[a], b.cols[e]);
+      const Eigen::Matrix<double, 6, 6> Hinv = b.ldlt.solve(Eigen::Matrix<double, 6, 6>::Identity());
+      const Eigen::MatrixXd G = Hinv * b.Hmc;  // 6 x c
+      out.cov_motion[k] = Hinv + G * Cc * G.transpose();
+    }
+  }
+  out.message = fmt::format("bound: {} parameters after eliminating {} motions{}, null space of dimension {}", n,
+                            F - static_cast<int>(out.skipped_frames.size()),
+                            out.skipped_frames.empty() ? "" : fmt::format(" ({} frames left out)", out.skipped_frames.size()),
                             out.null_dim);
   return out;
 }

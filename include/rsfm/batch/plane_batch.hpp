@@ -10,10 +10,15 @@
 // maximum-likelihood problem, which also estimates what the A&P models take as exact.
 // Frame 0 is the reference: identity motion, not a parameter.
 // Residuals: (h(x) - z) / sigma per observation, h the filter's own measurement function
-// (PlaneModel::point + projectWithJacobian) with its analytic Jacobians.
+// (PlaneModel::point + projectWithJacobian) with its analytic Jacobians, optionally seen through
+// the image-side camera (models/radial_camera.hpp: principal point offset and radial distortion,
+// each component estimated or held) and under a robust loss (the final refinement,
+// pipeline/refine.hpp). A point's reference position needs no frame-0 observation: a track born
+// later is anchored by its own observations.
 // The covariance at the optimum (inverse of J^T J in the free parameters) is the Cramer-Rao
 // bound for beta and the planes under Gaussian noise of standard deviation sigma.
 #include <Eigen/Core>
+#include <array>
 #include <string>
 #include <vector>
 
@@ -23,6 +28,15 @@ namespace rsfm {
 
 struct PlaneBatchOptions {
   bool estimate_references = true;  ///< ML: reference positions are parameters (frame-0 residuals)
+  /// Robust loss on each observation's whitened residual (Ceres' HuberLoss / CauchyLoss with
+  /// scale `loss_scale`, in units of sigma): none, the plain least squares.
+  enum class Loss { None, Huber, Cauchy };
+  Loss loss = Loss::None;
+  double loss_scale = 3.0;
+  /// The image-side camera (dc_x, dc_y, k1, k2; models/radial_camera.hpp): which components are
+  /// estimated. None estimated and the state's camera zero: the plain A&P projection (the
+  /// experiments' problem, bit for bit).
+  std::array<bool, 4> camera_free{false, false, false, false};
   int max_iterations = 200;         ///< Levenberg-Marquardt iterations
   double function_tolerance = 1e-12;
   double parameter_tolerance = 1e-12;
@@ -45,7 +59,8 @@ struct PlaneBatchState {
   std::vector<Eigen::Vector3d> t;   ///< frames 0..F: (t_X, t_Y, t_Z beta) (t[0] = 0)
   double beta = 1.0;
   std::vector<Eigen::Vector3d> N;   ///< per plane
-  std::vector<Eigen::Vector2d> ref;  ///< per point: reference-frame position (normalized)
+  std::vector<Eigen::Vector2d> ref;  ///< per point: reference-frame position (normalized, undistorted)
+  Eigen::Vector4d camera = Eigen::Vector4d::Zero();  ///< (dc_x, dc_y, k1, k2), models/radial_camera.hpp
 };
 
 struct PlaneBatchResult {
@@ -64,12 +79,21 @@ struct PlaneBatchResult {
 /// Whitened residual of one observation at frame k >= 1 (2 rows) and its Jacobians with respect to
 /// the motion (2x6), beta (2x1), the point's plane (2x3) and its reference (2x2). Exposed for the
 /// agreement test with the filter's measurement function. Returns the model's status.
+/// With `camera` (nullptr: none), the prediction goes through RadialCamera and J_camera (2x4)
+/// is its Jacobian.
 MeasureStatus planeBatchResidual(const Eigen::Vector3d& t, const Eigen::Vector3d& omega,
                                  const Eigen::Matrix3d& R_base, double beta,
                                  const Eigen::Vector3d& N, const Eigen::Vector2d& ref,
                                  const Eigen::Vector2d& z, double sigma, Eigen::Vector2d* r,
                                  Eigen::Matrix<double, 2, 6>* J_motion, Eigen::Vector2d* J_beta,
-                                 Eigen::Matrix<double, 2, 3>* J_N, Eigen::Matrix2d* J_ref);
+                                 Eigen::Matrix<double, 2, 3>* J_N, Eigen::Matrix2d* J_ref,
+                                 const Eigen::Vector4d* camera = nullptr,
+                                 Eigen::Matrix<double, 2, 4>* J_camera = nullptr);
+/// The frame-0 residual of a point's reference position through the camera: (RadialCamera(ref)
+/// - z) / sigma with its Jacobians (reference 2x2, beta 2x1, camera 2x4).
+void planeBatchReferenceResidual(const Eigen::Vector2d& ref, double beta, const Eigen::Vector4d& camera,
+                                 const Eigen::Vector2d& z, double sigma, Eigen::Vector2d* r, Eigen::Matrix2d* J_ref,
+                                 Eigen::Vector2d* J_beta, Eigen::Matrix<double, 2, 4>* J_camera);
 
 /// The Cramer-Rao bound of the batch problem at a state (with references estimated), accounting
 /// for parameters the data do not determine: the Fisher information J^T J of every observation
@@ -79,17 +103,41 @@ MeasureStatus planeBatchResidual(const Eigen::Vector3d& t, const Eigen::Vector3d
 /// orthogonal to that null space; its bound is then the pseudo-inverse's quadratic form.
 /// Pure rotation leaves the planes in the null space; pure translation leaves beta and the
 /// planes' tilt (the affine ambiguity).
+struct PlaneBatchBoundOptions {
+  /// Camera components (dc_x, dc_y, k1, k2) that are parameters of the bound (the state's camera
+  /// enters the residuals whenever it is non-zero or a component is free).
+  std::array<bool, 4> camera_free{false, false, false, false};
+  bool motion_covariance = false;  ///< also each frame's 6x6 motion covariance (back-substitution)
+  /// Frames whose motion the observations do not determine (fewer than 4, or a singular block)
+  /// are left out and listed in skipped_frames; false: such a frame makes the bound fail.
+  bool skip_undetermined_frames = false;
+};
 struct PlaneBatchBound {
   bool ok = false;
   std::string message;
-  int parameters = 0;   ///< references, beta and the planes (the motions eliminated)
+  int parameters = 0;   ///< references, beta, the planes and the free camera components (motions eliminated)
   int null_dim = 0;     ///< dimension of the null space
   bool beta_estimable = false;
   double var_beta = 0;                      ///< when estimable
   std::vector<bool> normal_estimable;       ///< per plane: the normal's direction (2 tangent functionals)
   std::vector<Eigen::Matrix3d> cov_N;       ///< per plane (gauge row/column zero; meaningful when estimable)
+  std::vector<Eigen::Vector3d> cov_beta_N;  ///< per plane: cov(beta, N)
+  std::array<bool, 4> camera_estimable{false, false, false, false};
+  Eigen::Matrix4d cov_camera = Eigen::Matrix4d::Zero();  ///< free components only (others zero)
+  std::vector<Eigen::Matrix<double, 6, 6>> cov_motion;   ///< frames 0..F (frame 0 and skipped frames zero)
+  std::vector<int> skipped_frames;
+  /// Whether a functional of (beta, N..., camera) is estimable: `g_beta`, per plane `g_N` (3) and
+  /// `g_camera` (4) its gradient.
+  bool estimable(double g_beta, const std::vector<Eigen::Vector3d>& g_N, const Eigen::Vector4d& g_camera) const;
+  // Internal: the kept parameters' pseudo-inverse covariance, scaling and null space.
+  Eigen::MatrixXd cov, null_scaled;
+  Eigen::VectorXd scale;
+  int beta_index = -1;
+  std::vector<int> N_index;          ///< 3 per plane, -1 for the gauge component
+  std::array<int, 4> camera_index{-1, -1, -1, -1};
 };
-PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchState& at);
+PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchState& at,
+                                const PlaneBatchBoundOptions& options = {});
 
 /// Solves the batch problem from `start`. Never throws on numerical trouble: converged = false
 /// and message say what happened.
