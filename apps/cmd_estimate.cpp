@@ -42,6 +42,7 @@ struct EstimateCli {
   std::string reference = std::string(toString(TrackFilterOptions::defaultFilter().reference));
   std::string plane_rois;       ///< "x,y,...;x,y,..."
   std::optional<double> beta_sd0;  ///< --beta-sd0: either pipeline's
+  std::string refine = "final";    ///< --refine final | none
   bool plots = true;
   bool quiet = false;
   std::string out = "out";
@@ -112,6 +113,9 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--depth0", f.depth0, "start: planes frontal at this many (initial) focal lengths (scale gauge)")
       ->capture_default_str();
   a->add_flag("!--no-new-tracks", f.add_new_tracks, "only tracks of the reference frame enter the plane models");
+  a->add_option("--refine", e->refine,
+                "plane models: final | none (final: a bundle adjustment of every frame after the filter, docs/estimate.md)")
+      ->capture_default_str();
   a->add_option("--out", e->out, "output directory")->capture_default_str();
   a->add_flag("--quiet", e->quiet, "no progress on stderr");
 }
@@ -157,6 +161,9 @@ std::string finishEstimateOptions(EstimateCli* e) {
       e->est.finder.rois.push_back(p);
     }
   }
+  if (e->refine == "final") e->est.refine.enabled = true;
+  else if (e->refine == "none") e->est.refine.enabled = false;
+  else return "--refine must be final or none, got '" + e->refine + "'";
   // One flag, the chosen pipeline's option.
   f.beta_sd0 = e->beta_sd0;
   pp.beta_sd0 = e->beta_sd0;
@@ -193,8 +200,9 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
   if (!res.ok()) return fail(kRuntimeFailure, "the filter stopped at " + res.stopped + " (no outputs written)");
   io::EstimateReport rep;
   rep.tracks = &tracks;
-  rep.labels = &pf.labels;
+  rep.labels = &r.labels();
   rep.result = &res;
+  rep.refined = &r.refined;
   rep.model = e.est.filter.model;
   rep.command = invocation();
   nlohmann::json cands = nlohmann::json::array();
@@ -211,19 +219,27 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
         summary = io::writeEstimateReport(rep, e.out, &files, e.plots);
         if (write_tracks) files.write(std::filesystem::path(e.out) / "tracks.csv", io::tracksToString(tracks));
         if (!overlay_input.empty())
-          vision::writeOverlay(overlay_input, range, tracks, pf.labels, res,
+          vision::writeOverlay(overlay_input, range, tracks, r.labels(), r.main(),
                                files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
         files.commit();
       }))
     return rc;
   if (!e.quiet) {
     const auto& s = summary;
-    fmt::print(stderr, "estimate: {} frames, focal {:.1f} +- {:.1f} px", res.frames.size(), s["focal_px"].get<double>(),
-               s["focal_sd_px"].get<double>());
+    if (s["focal_px"].is_null())
+      fmt::print(stderr, "estimate: {} frames, focal length not determined{}", res.frames.size(),
+                 s.contains("focal_interval_px")
+                     ? fmt::format(" (the data support {:.0f}-{:.0f} px)", s["focal_interval_px"][0].get<double>(),
+                                   s["focal_interval_px"][1].get<double>())
+                     : "");
+    else
+      fmt::print(stderr, "estimate: {} frames, focal {:.1f} +- {:.1f} px{}", res.frames.size(), s["focal_px"].get<double>(),
+                 s["focal_sd_px"].get<double>(), r.refined.ok ? " (refined)" : "");
     for (const auto& a : s["angles_between_planes_deg"])
       fmt::print(stderr, ", angle between planes {} and {}: {:.1f} deg", a["planes"][0].get<int>(), a["planes"][1].get<int>(),
                  a["angle_deg"].get<double>());
-    fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum, planes.csv, labels.csv{}{}{}\n", e.out,
+    fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum{}, planes.csv, poses.csv, labels.csv{}{}{}\n", e.out,
+               r.refined.ok ? ", trajectory_online.tum" : "",
                e.plots ? ", motion/normals/focal.png" : "", write_tracks ? ", tracks.csv" : "",
                overlay_input.empty() ? "" : ", overlay.mp4");
   }

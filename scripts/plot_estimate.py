@@ -6,6 +6,8 @@ Usage: plot_estimate.py TRAJECTORY.tum PLANES.csv MOTION.png MOTION.svg NORMALS.
   from the reference frame (deg);
 - normals: each plane's unit normal as azimuth/elevation angles (deg) with its 1-sigma band;
 - focal: focal length (px) with its 1-sigma band.
+planes.csv's rows with estimate "online" are the filter's frame by frame (curves); a row "refined"
+is the final refinement's estimate (a dashed line with its 1-sigma band at the right).
 Run with /usr/bin/python3 (Debian's matplotlib) and MPLBACKEND=Agg.
 """
 import csv
@@ -42,9 +44,18 @@ def main():
         sys.exit("plot_estimate.py: no poses in " + sys.argv[1])
     planes = defaultdict(lambda: defaultdict(list))
     focal = {}
+    refined = {}  # plane -> (az, el, sd); -1 -> (focal, sd)
     with open(sys.argv[2], newline="") as f:
         for row in csv.DictReader(f):
             fr = int(row["frame"])
+            if row.get("estimate", "online") == "refined":
+                refined[-1] = (fnum(row["focal_px"]), fnum(row["focal_sd_px"]))
+                p = int(row["plane"])
+                if p >= 0:
+                    nx, ny, nz = fnum(row["nx"]), fnum(row["ny"]), fnum(row["nz"])
+                    refined[p] = (math.degrees(math.atan2(nx, nz)), math.degrees(math.asin(max(-1.0, min(1.0, -ny)))),
+                                  fnum(row["normal_sd_deg"]))
+                continue
             focal[fr] = (fnum(row["focal_px"]), fnum(row["focal_sd_px"]))
             p = int(row["plane"])
             if p < 0:
@@ -83,8 +94,12 @@ def main():
         for r, key in enumerate(("az", "el")):
             lo = [v - s for v, s in zip(d[key], d["sd"])]
             hi = [v + s for v, s in zip(d[key], d["sd"])]
-            ax[r].plot(d["frame"], d[key], color=c, lw=1.4, label=f"plane {p}")
+            ax[r].plot(d["frame"], d[key], color=c, lw=1.4, label=f"plane {p} (filter)")
             ax[r].fill_between(d["frame"], lo, hi, color=c, alpha=0.2, lw=0)
+            if p in refined:
+                v, sd = refined[p][r], refined[p][2]
+                ax[r].axhline(v, color=c, ls="--", lw=1.0, label=f"plane {p} refined" if r == 0 else None)
+                ax[r].axhspan(v - sd, v + sd, color=c, alpha=0.08, lw=0)
     ax[0].set_ylabel("normal azimuth atan2(nx, nz) (deg)")
     ax[1].set_ylabel("normal elevation asin(-ny) (deg)")
     ax[1].set_xlabel("frame")
@@ -105,9 +120,14 @@ def main():
     fv = [focal[k][0] for k in fr]
     fs = [focal[k][1] for k in fr]
     fig, ax = plt.subplots(figsize=(8, 4))
-    ax.plot(fr, fv, color="tab:red", lw=1.4)
+    ax.plot(fr, fv, color="tab:red", lw=1.4, label="filter")
     ax.fill_between(fr, [v - s for v, s in zip(fv, fs)], [v + s for v, s in zip(fv, fs)], color="tab:red",
                     alpha=0.2, lw=0)
+    if -1 in refined:
+        v, sd = refined[-1]
+        ax.axhline(v, color="k", ls="--", lw=1.0, label="refined")
+        ax.axhspan(v - sd, v + sd, color="k", alpha=0.08, lw=0)
+        ax.legend(fontsize=8)
     ax.set_xlabel("frame")
     ax.set_ylabel("focal length (px)")
     ax.grid(alpha=0.3)

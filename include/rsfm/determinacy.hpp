@@ -11,5 +11,9 @@ namespace rsfm {
 inline constexpr double kDeterminedFocalRelSd = 0.05;
 /// A plane's normal: sd of its direction (sqrt of the trace of its 2x2 tangent covariance) at most 5 deg.
 inline constexpr double kDeterminedNormalSdDeg = 5.0;
+/// The principal point: sd of each coordinate at most 1 % of the image's larger side.
+inline constexpr double kDeterminedPrincipalPointSdFraction = 0.01;
+/// A radial distortion coefficient (k1, k2): sd at most 0.02.
+inline constexpr double kDeterminedDistortionSd = 0.02;
 
 }  // namespace rsfm

@@ -14,6 +14,57 @@
 
 namespace rsfm {
 
+namespace {
+
+/// A point of its plane in the reference frame (seed eq. 12) with its partials: shared by every
+/// frame that observes it.
+struct PlanePoint {
+  MeasureStatus status = MeasureStatus::Ok;
+  Eigen::Vector3d p, dpb;
+  Eigen::Matrix3d dpN;
+  Eigen::Matrix<double, 3, 2> dpu;
+};
+
+PlanePoint planePoint(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& ref) {
+  PlanePoint pt;
+  pt.status = PlaneModel::point(N, beta, ref, &pt.p, &pt.dpb, &pt.dpN, &pt.dpu);
+  return pt;
+}
+
+/// The residual of one observation from its frame's motion and its point.
+MeasureStatus residualFrom(const MotionContext& m, const PlanePoint& pt, double beta, const Eigen::Vector2d& z, double sigma,
+                           Eigen::Vector2d* r, Eigen::Matrix<double, 2, 6>* J_motion, Eigen::Vector2d* J_beta,
+                           Eigen::Matrix<double, 2, 3>* J_N, Eigen::Matrix2d* J_ref, const Eigen::Vector4d* camera,
+                           Eigen::Matrix<double, 2, 4>* J_camera) {
+  if (pt.status != MeasureStatus::Ok) return pt.status;
+  Eigen::Vector2d h;
+  Eigen::Matrix<double, 2, 7> Hm;
+  Eigen::Matrix<double, 2, 3> dhdp;
+  const MeasureStatus s = projectWithJacobian(m, pt.p, pt.dpb, &h, &Hm, &dhdp);
+  if (s != MeasureStatus::Ok) return s;
+  const double w = 1.0 / sigma;
+  if (!camera) {
+    *r = (h - z) * w;
+    if (J_motion) *J_motion = Hm.leftCols<6>() * w;
+    if (J_beta) *J_beta = Hm.col(6) * w;
+    if (J_N) *J_N = dhdp * pt.dpN * w;
+    if (J_ref) *J_ref = dhdp * pt.dpu * w;
+    return MeasureStatus::Ok;
+  }
+  Eigen::Matrix2d Jh;
+  Eigen::Vector2d Jb;
+  const Eigen::Vector2d u = RadialCamera::apply(*camera, beta, h, &Jh, &Jb, J_camera);
+  *r = (u - z) * w;
+  if (J_motion) *J_motion = Jh * Hm.leftCols<6>() * w;
+  if (J_beta) *J_beta = (Jh * Hm.col(6) + Jb) * w;
+  if (J_N) *J_N = Jh * dhdp * pt.dpN * w;
+  if (J_ref) *J_ref = Jh * dhdp * pt.dpu * w;
+  if (J_camera) *J_camera *= w;
+  return MeasureStatus::Ok;
+}
+
+}  // namespace
+
 MeasureStatus planeBatchResidual(const Eigen::Vector3d& t, const Eigen::Vector3d& omega,
                                  const Eigen::Matrix3d& R_base, double beta,
                                  const Eigen::Vector3d& N, const Eigen::Vector2d& ref,
@@ -23,35 +74,46 @@ MeasureStatus planeBatchResidual(const Eigen::Vector3d& t, const Eigen::Vector3d
                                  const Eigen::Vector4d* camera, Eigen::Matrix<double, 2, 4>* J_camera) {
   Eigen::Matrix<double, 7, 1> x;
   x << t, omega, beta;
-  const MotionContext m = MotionContext::fromState(Eigen::VectorXd(x), R_base);
-  Eigen::Vector3d p, dpb;
-  Eigen::Matrix3d dpN;
-  Eigen::Matrix<double, 3, 2> dpu;
-  MeasureStatus s = PlaneModel::point(N, beta, ref, &p, &dpb, &dpN, &dpu);
-  if (s != MeasureStatus::Ok) return s;
-  Eigen::Vector2d h;
-  Eigen::Matrix<double, 2, 7> Hm;
-  Eigen::Matrix<double, 2, 3> dhdp;
-  s = projectWithJacobian(m, p, dpb, &h, &Hm, &dhdp);
-  if (s != MeasureStatus::Ok) return s;
-  const double w = 1.0 / sigma;
+  const MotionContext m = MotionContext::fromState(x, R_base);
+  return residualFrom(m, planePoint(N, beta, ref), beta, z, sigma, r, J_motion, J_beta, J_N, J_ref, camera, J_camera);
+}
+
+MeasureStatus planeBatchRotationResidual(const Eigen::Vector3d& omega, const Eigen::Matrix3d& R_base, double beta,
+                                         const Eigen::Vector2d& ref, const Eigen::Vector2d& z, double sigma,
+                                         const Eigen::Vector4d* camera, Eigen::Vector2d* r,
+                                         Eigen::Matrix<double, 2, 3>* J_omega, Eigen::Vector2d* J_beta,
+                                         Eigen::Matrix2d* J_ref, Eigen::Matrix<double, 2, 4>* J_camera) {
+  if (!incrementalRotationValid(omega) || !(beta > 0)) return MeasureStatus::InvalidRotation;
+  const Eigen::Matrix3d R = incrementalRotation(omega) * R_base;
+  const Eigen::Vector3d d(beta * ref.x(), beta * ref.y(), 1.0);
+  const Eigen::Vector3d w = R * d;
+  if (!(w.z() > 1e-12)) return MeasureStatus::BehindCamera;
+  const Eigen::Vector2d h(w.x() / (beta * w.z()), w.y() / (beta * w.z()));
+  // dh/dw
+  Eigen::Matrix<double, 2, 3> dhdw;
+  dhdw << 1.0 / (beta * w.z()), 0.0, -w.x() / (beta * w.z() * w.z()), 0.0, 1.0 / (beta * w.z()),
+      -w.y() / (beta * w.z() * w.z());
+  Eigen::Matrix<double, 2, 3> Jw;
+  const auto dRi = incrementalRotationDerivatives(omega);
+  for (int j = 0; j < 3; ++j) Jw.col(j) = dhdw * (dRi[j] * R_base * d);
+  const Eigen::Matrix<double, 2, 2> Jr = dhdw * R.leftCols<2>() * beta;
+  const Eigen::Vector2d Jb = dhdw * (R.leftCols<2>() * ref) - h / beta;
+  const double wgt = 1.0 / sigma;
   if (!camera) {
-    *r = (h - z) * w;
-    if (J_motion) *J_motion = Hm.leftCols<6>() * w;
-    if (J_beta) *J_beta = Hm.col(6) * w;
-    if (J_N) *J_N = dhdp * dpN * w;
-    if (J_ref) *J_ref = dhdp * dpu * w;
+    *r = (h - z) * wgt;
+    if (J_omega) *J_omega = Jw * wgt;
+    if (J_beta) *J_beta = Jb * wgt;
+    if (J_ref) *J_ref = Jr * wgt;
     return MeasureStatus::Ok;
   }
   Eigen::Matrix2d Jh;
-  Eigen::Vector2d Jb;
-  const Eigen::Vector2d u = RadialCamera::apply(*camera, beta, h, &Jh, &Jb, J_camera);
-  *r = (u - z) * w;
-  if (J_motion) *J_motion = Jh * Hm.leftCols<6>() * w;
-  if (J_beta) *J_beta = (Jh * Hm.col(6) + Jb) * w;
-  if (J_N) *J_N = Jh * dhdp * dpN * w;
-  if (J_ref) *J_ref = Jh * dhdp * dpu * w;
-  if (J_camera) *J_camera *= w;
+  Eigen::Vector2d Jbc;
+  const Eigen::Vector2d u = RadialCamera::apply(*camera, beta, h, &Jh, &Jbc, J_camera);
+  *r = (u - z) * wgt;
+  if (J_omega) *J_omega = Jh * Jw * wgt;
+  if (J_beta) *J_beta = (Jh * Jb + Jbc) * wgt;
+  if (J_ref) *J_ref = Jh * Jr * wgt;
+  if (J_camera) *J_camera *= wgt;
   return MeasureStatus::Ok;
 }
 
@@ -67,12 +129,26 @@ void planeBatchReferenceResidual(const Eigen::Vector2d& ref, double beta, const 
 
 namespace {
 
+/// Memoized per-frame motion and per-point plane point: Ceres evaluates one frame's (or one
+/// point's) residual blocks one after the other at the same parameter values, so each is
+/// computed once per evaluation instead of once per observation (same arithmetic, same result).
+struct MotionCache {
+  std::array<double, 7> key{};
+  bool valid = false;
+  MotionContext m;
+};
+struct PointCache {
+  std::array<double, 6> key{};
+  bool valid = false;
+  PlanePoint pt;
+};
+
 /// One observation at frame k >= 1. Parameter blocks: motion (6), beta (1), N (3)[, ref (2)][, camera (4)].
 class ObservationCost final : public ceres::CostFunction {
  public:
   ObservationCost(const Eigen::Matrix3d& R_base, const Eigen::Vector2d& z, double sigma,
-                  const Eigen::Vector2d* fixed_ref, bool camera = false)
-      : R_base_(R_base), z_(z), sigma_(sigma), has_fixed_ref_(fixed_ref != nullptr), camera_(camera) {
+                  const Eigen::Vector2d* fixed_ref, bool camera, MotionCache* mc, PointCache* pc)
+      : R_base_(R_base), z_(z), sigma_(sigma), has_fixed_ref_(fixed_ref != nullptr), camera_(camera), mc_(mc), pc_(pc) {
     if (fixed_ref) fixed_ref_ = *fixed_ref;
     set_num_residuals(2);
     mutable_parameter_block_sizes()->push_back(6);
@@ -98,10 +174,23 @@ class ObservationCost final : public ceres::CostFunction {
     const int cam_block = has_fixed_ref_ ? 3 : 4;
     Eigen::Vector4d cam = Eigen::Vector4d::Zero();
     if (camera_) cam = Eigen::Map<const Eigen::Vector4d>(params[cam_block]);
-    if (planeBatchResidual(motion.head<3>(), motion.tail<3>(), R_base_, beta, N, ref, z_, sigma_,
-                           &r, want ? &Jm : nullptr, want ? &Jb : nullptr, want ? &JN : nullptr,
-                           want ? &Ju : nullptr, camera_ ? &cam : nullptr,
-                           want && camera_ ? &Jc : nullptr) != MeasureStatus::Ok)
+    const std::array<double, 7> mk{motion[0], motion[1], motion[2], motion[3], motion[4], motion[5], beta};
+    if (!mc_->valid || mc_->key != mk) {
+      Eigen::Matrix<double, 7, 1> x;
+      x << motion, beta;
+      mc_->m = MotionContext::fromState(x, R_base_);
+      mc_->key = mk;
+      mc_->valid = true;
+    }
+    const std::array<double, 6> pk{N.x(), N.y(), N.z(), beta, ref.x(), ref.y()};
+    if (!pc_->valid || pc_->key != pk) {
+      pc_->pt = planePoint(N, beta, ref);
+      pc_->key = pk;
+      pc_->valid = true;
+    }
+    if (residualFrom(mc_->m, pc_->pt, beta, z_, sigma_, &r, want ? &Jm : nullptr, want ? &Jb : nullptr,
+                     want ? &JN : nullptr, want ? &Ju : nullptr, camera_ ? &cam : nullptr,
+                     want && camera_ ? &Jc : nullptr) != MeasureStatus::Ok)
       return false;  // Ceres treats the step as unsuccessful and shrinks it
     residuals[0] = r[0];
     residuals[1] = r[1];
@@ -139,7 +228,64 @@ class ObservationCost final : public ceres::CostFunction {
   double sigma_;
   bool has_fixed_ref_;
   bool camera_;
+  MotionCache* mc_;
+  PointCache* pc_;
   Eigen::Vector2d fixed_ref_ = Eigen::Vector2d::Zero();
+};
+
+/// One observation at frame k >= 1 under pure rotation. Blocks: motion (6; its translation held),
+/// beta (1), ref (2)[, camera (4)].
+class RotationObservationCost final : public ceres::CostFunction {
+ public:
+  RotationObservationCost(const Eigen::Matrix3d& R_base, const Eigen::Vector2d& z, double sigma, bool camera)
+      : R_base_(R_base), z_(z), sigma_(sigma), camera_(camera) {
+    set_num_residuals(2);
+    mutable_parameter_block_sizes()->push_back(6);
+    mutable_parameter_block_sizes()->push_back(1);
+    mutable_parameter_block_sizes()->push_back(2);
+    if (camera_) mutable_parameter_block_sizes()->push_back(4);
+  }
+  bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
+    const Eigen::Vector3d omega(params[0][3], params[0][4], params[0][5]);
+    const Eigen::Vector2d ref(params[2][0], params[2][1]);
+    Eigen::Vector4d cam = Eigen::Vector4d::Zero();
+    if (camera_) cam = Eigen::Map<const Eigen::Vector4d>(params[3]);
+    Eigen::Vector2d r, Jb;
+    Eigen::Matrix<double, 2, 3> Jw;
+    Eigen::Matrix2d Ju;
+    Eigen::Matrix<double, 2, 4> Jc;
+    if (planeBatchRotationResidual(omega, R_base_, params[1][0], ref, z_, sigma_, camera_ ? &cam : nullptr, &r, &Jw, &Jb, &Ju,
+                                   camera_ ? &Jc : nullptr) != MeasureStatus::Ok)
+      return false;
+    residuals[0] = r[0];
+    residuals[1] = r[1];
+    if (jacobians) {
+      if (jacobians[0]) {
+        Eigen::Map<Eigen::Matrix<double, 2, 6, Eigen::RowMajor>> J0(jacobians[0]);
+        J0.leftCols<3>().setZero();
+        J0.rightCols<3>() = Jw;
+      }
+      if (jacobians[1]) {
+        Eigen::Map<Eigen::Vector2d> J1(jacobians[1]);
+        J1 = Jb;
+      }
+      if (jacobians[2]) {
+        Eigen::Map<Eigen::Matrix<double, 2, 2, Eigen::RowMajor>> J2(jacobians[2]);
+        J2 = Ju;
+      }
+      if (camera_ && jacobians[3]) {
+        Eigen::Map<Eigen::Matrix<double, 2, 4, Eigen::RowMajor>> J3(jacobians[3]);
+        J3 = Jc;
+      }
+    }
+    return true;
+  }
+
+ private:
+  Eigen::Matrix3d R_base_;
+  Eigen::Vector2d z_;
+  double sigma_;
+  bool camera_;
 };
 
 /// Reference-frame observation through the camera: blocks ref (2), beta (1), camera (4).
@@ -236,7 +382,7 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   Eigen::Vector4d camera = start.camera;
   const bool use_camera = std::any_of(options.camera_free.begin(), options.camera_free.end(), [](bool b) { return b; }) ||
                           !camera.isZero(0.0);
-  ceres::LossFunction* loss = nullptr;  // owned by the problem (one shared instance)
+  ceres::LossFunction* loss = nullptr;  // one instance for every residual, owned by loss_owner
   if (options.loss == PlaneBatchOptions::Loss::Huber) loss = new ceres::HuberLoss(options.loss_scale);
   if (options.loss == PlaneBatchOptions::Loss::Cauchy) loss = new ceres::CauchyLoss(options.loss_scale);
 
@@ -244,9 +390,13 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   std::unique_ptr<ceres::LossFunction> loss_owner(loss);
   ceres::Problem problem(po);
-  for (int k = 1; k <= F; ++k) problem.AddParameterBlock(motion[k].data(), 6);
+  for (int k = 1; k <= F; ++k) {
+    problem.AddParameterBlock(motion[k].data(), 6);
+    if (options.rotation_only) problem.SetManifold(motion[k].data(), new ceres::SubsetManifold(6, {0, 1, 2}));
+  }
   problem.AddParameterBlock(&beta, 1);
-  for (int j = 0; j < data.num_planes; ++j) {
+  if (options.hold_beta) problem.SetParameterBlockConstant(&beta);
+  for (int j = 0; j < data.num_planes && !options.rotation_only; ++j) {
     problem.AddParameterBlock(N[j].data(), 3);
     if (j == data.gauge_plane)
       problem.SetManifold(N[j].data(), new ceres::SubsetManifold(3, {data.gauge_component}));
@@ -272,21 +422,43 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
       ++res.residuals;
     }
   }
+  std::vector<MotionCache> motion_cache(F + 1);
+  std::vector<PointCache> point_cache(P);
   for (int k = 1; k <= F; ++k)
     for (const Observation& o : data.frames[k]) {
       if (o.id < 0 || o.id >= P) continue;
       const int l = data.labels[o.id];
+      if (options.rotation_only) {
+        std::vector<double*> rblocks{motion[k].data(), &beta, ref[o.id].data()};
+        if (use_camera) rblocks.push_back(camera.data());
+        problem.AddResidualBlock(new RotationObservationCost(start.R[k], o.uv, data.sigma_uv, use_camera), loss, rblocks);
+        ++res.residuals;
+        continue;
+      }
       std::vector<double*> blocks{motion[k].data(), &beta, N[l].data()};
       if (options.estimate_references) blocks.push_back(ref[o.id].data());
       if (use_camera) blocks.push_back(camera.data());
       problem.AddResidualBlock(
-          new ObservationCost(start.R[k], o.uv, data.sigma_uv, options.estimate_references ? nullptr : &ref[o.id], use_camera),
+          new ObservationCost(start.R[k], o.uv, data.sigma_uv, options.estimate_references ? nullptr : &ref[o.id], use_camera,
+                              &motion_cache[k], &point_cache[o.id]),
           loss, blocks);
       ++res.residuals;
     }
 
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::SPARSE_SCHUR;
+  if (options.eliminate_motions_first) {
+    auto ordering = std::make_shared<ceres::ParameterBlockOrdering>();
+    for (int k = 1; k <= F; ++k) ordering->AddElementToGroup(motion[k].data(), 0);
+    ordering->AddElementToGroup(&beta, 1);
+    for (auto& n : N)
+      if (problem.HasParameterBlock(n.data())) ordering->AddElementToGroup(n.data(), 1);
+    for (auto& u : ref)
+      if (problem.HasParameterBlock(u.data())) ordering->AddElementToGroup(u.data(), 1);
+    if (use_camera) ordering->AddElementToGroup(camera.data(), 1);
+    so.linear_solver_ordering = ordering;
+    so.linear_solver_type = ceres::DENSE_SCHUR;
+  }
   so.max_num_iterations = options.max_iterations;
   so.function_tolerance = options.function_tolerance;
   so.parameter_tolerance = options.parameter_tolerance;
@@ -318,7 +490,7 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   res.state.ref = ref;
   res.state.camera = camera;
 
-  if (options.compute_covariance && res.converged) {
+  if (options.compute_covariance && res.converged && !options.hold_beta && !options.rotation_only) {
     ceres::Covariance::Options co;
     co.algorithm_type = ceres::SPARSE_QR;
     co.num_threads = 1;

@@ -14,7 +14,10 @@ bool PlaneBatchBound::estimable(double g_beta, const std::vector<Eigen::Vector3d
   if (!ok) return false;
   const int n = static_cast<int>(scale.size());
   Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
-  g[beta_index] = g_beta;
+  if (beta_index >= 0)
+    g[beta_index] = g_beta;
+  else if (g_beta != 0)
+    return false;  // beta is held
   for (std::size_t j = 0; j < g_N.size(); ++j)
     for (int a = 0; a < 3; ++a)
       if (N_index[3 * j + a] >= 0) g[N_index[3 * j + a]] = g_N[j][a];
@@ -46,10 +49,10 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
   const Eigen::Vector4d* cam = use_camera ? &at.camera : nullptr;
   // Kept parameters: refs (2P), beta (1), the planes (3m minus the gauge component), the free
   // camera components.
-  const int iBeta = 2 * P;
+  const int iBeta = opt.hold_beta ? -1 : 2 * P;
   out.beta_index = iBeta;
   out.N_index.assign(3 * m, -1);
-  int n = iBeta + 1;
+  int n = 2 * P + (opt.hold_beta ? 0 : 1);
   for (int j = 0; j < m; ++j)
     for (int c = 0; c < 3; ++c)
       if (!(j == data.gauge_plane && c == data.gauge_component)) out.N_index[3 * j + c] = n++;
@@ -74,8 +77,10 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       J.col(q++) = Ju.col(a);
     }
     if (use_camera) {
-      idx[q] = iBeta;
-      J.col(q++) = Jb;
+      if (iBeta >= 0) {
+        idx[q] = iBeta;
+        J.col(q++) = Jb;
+      }
       for (int c = 0; c < 4; ++c)
         if (iC[c] >= 0) {
           idx[q] = iC[c];
@@ -110,7 +115,8 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       continue;
     }
     // Columns of this frame: beta, its planes' kept components, its points' refs, the camera.
-    cols.assign(1, iBeta);
+    cols.clear();
+    if (iBeta >= 0) cols.push_back(iBeta);
     std::vector<char> plane_in(m, 0);
     for (const Observation& o : obs) plane_in[data.labels[o.id]] = 1;
     for (int j = 0; j < m; ++j)
@@ -146,8 +152,10 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       int idx[10];
       Eigen::Matrix<double, 2, 10> Jc;
       int q = 0;
-      idx[q] = local(iBeta);
-      Jc.col(q++) = Jb;
+      if (iBeta >= 0) {
+        idx[q] = local(iBeta);
+        Jc.col(q++) = Jb;
+      }
       for (int a = 0; a < 3; ++a)
         if (iN[3 * l + a] >= 0) {
           idx[q] = local(iN[3 * l + a]);
@@ -211,14 +219,14 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
   out.cov = d.asDiagonal() * pinv * d.asDiagonal();  // back to the original units
   out.ok = true;
   const Eigen::MatrixXd& cov = out.cov;
-  out.beta_estimable = out.estimable(1.0, {}, Eigen::Vector4d::Zero());
-  out.var_beta = cov(iBeta, iBeta);
+  out.beta_estimable = iBeta >= 0 && out.estimable(1.0, {}, Eigen::Vector4d::Zero());
+  out.var_beta = iBeta >= 0 ? cov(iBeta, iBeta) : 0.0;
   for (int j = 0; j < m; ++j) {
     Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
     Eigen::Vector3d cb = Eigen::Vector3d::Zero();
     for (int a = 0; a < 3; ++a) {
       if (iN[3 * j + a] < 0) continue;
-      cb[a] = cov(iBeta, iN[3 * j + a]);
+      if (iBeta >= 0) cb[a] = cov(iBeta, iN[3 * j + a]);
       for (int b = 0; b < 3; ++b)
         if (iN[3 * j + b] >= 0) C(a, b) = cov(iN[3 * j + a], iN[3 * j + b]);
     }

@@ -11,6 +11,8 @@
 #include "rsfm/io/tum.hpp"
 #include "rsfm/rotation.hpp"
 
+#include <algorithm>
+
 namespace rsfm::io {
 
 void poseOf(const TrackFrame& f, Eigen::Vector3d* position, Eigen::Quaterniond* q) {
@@ -63,22 +65,53 @@ void summaryTail(nlohmann::json* j, const std::string& stopped, const std::strin
   for (auto it = extra.begin(); it != extra.end(); ++it) (*j)[it.key()] = it.value();
 }
 
-nlohmann::json estimateSummary(const EstimateReport& r) {
-  const Tracks& t = *r.tracks;
-  const TrackFilterResult& res = *r.result;
+namespace {
+
+bool refinedOk(const EstimateReport& r) { return r.refined && r.refined->ok; }
+
+/// Final focal length, its sd, normals, distances and normal sds of a run.
+nlohmann::json finalEstimates(const TrackFilterResult& res) {
   const TrackFrame& last = res.frames.back();
-  nlohmann::json j = summaryHead(toString(r.model), static_cast<int>(res.frames.size()), res.frames.front().frame,
-                                 last.frame, t.image, res.scale_px, last.beta, last.var_beta);
-  nlohmann::json normals = nlohmann::json::array(), dist = nlohmann::json::array(), nsd = nlohmann::json::array();
+  nlohmann::json normals = nlohmann::json::array(), dist = nlohmann::json::array(), nsd = nlohmann::json::array(),
+                 dsd = nlohmann::json::array();
   for (int p = 0; p < static_cast<int>(last.N.size()); ++p) {
     const MetricPlane mp = metricPlane(last.N[p], last.beta, covBetaN(last, p));
     normals.push_back({mp.n.x(), mp.n.y(), mp.n.z()});
     dist.push_back(mp.d);
     nsd.push_back(mp.sd_angle_deg);
+    dsd.push_back(mp.sd_d);
+  }
+  return {{"focal_px", res.scale_px / last.beta},
+          {"focal_sd_px", res.scale_px * std::sqrt(std::max(0.0, last.var_beta)) / (last.beta * last.beta)},
+          {"planes", normals},
+          {"plane_distances", dist},
+          {"plane_normal_sd_deg", nsd},
+          {"plane_distance_sd", dsd},
+          {"plane_reprojection_rms_px", res.plane_rms_px}};
+}
+
+}  // namespace
+
+nlohmann::json estimateSummary(const EstimateReport& r) {
+  const Tracks& t = *r.tracks;
+  const bool refined = refinedOk(r);
+  const TrackFilterResult& res = refined ? r.refined->state : *r.result;
+  const TrackFrame& last = res.frames.back();
+  nlohmann::json j = summaryHead(toString(r.model), static_cast<int>(res.frames.size()), res.frames.front().frame,
+                                 last.frame, t.image, res.scale_px, last.beta, last.var_beta);
+  nlohmann::json normals = nlohmann::json::array(), dist = nlohmann::json::array(), nsd = nlohmann::json::array(),
+                 dsd = nlohmann::json::array();
+  for (int p = 0; p < static_cast<int>(last.N.size()); ++p) {
+    const MetricPlane mp = metricPlane(last.N[p], last.beta, covBetaN(last, p));
+    normals.push_back({mp.n.x(), mp.n.y(), mp.n.z()});
+    dist.push_back(mp.d);
+    nsd.push_back(mp.sd_angle_deg);
+    dsd.push_back(mp.sd_d);
   }
   j["planes"] = normals;
   j["plane_distances"] = dist;
   j["plane_normal_sd_deg"] = nsd;
+  j["plane_distance_sd"] = dsd;
   if (r.model == TrackModel::Point) {
     // No planes: the per-plane lists stay empty (the summary schema pairs them with "planes").
     j["plane_tracks"] = nlohmann::json::array();
@@ -106,8 +139,8 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   }
   j["tracks"] = {{"total", static_cast<int>(r.labels->size())}, {"on_planes", labelled}, {"outliers", outliers},
                  {"too_short", unused}};
-  long gated = 0, used = 0;
-  for (const auto& f : res.frames) {
+  long gated = 0, used = 0;  // the online filter's chi-square gate
+  for (const auto& f : r.result->frames) {
     gated += f.gated;
     used += f.used;
   }
@@ -127,6 +160,54 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
     pn.push_back(one);
   }
   j["pass_planes"] = pn;
+  if (r.model != TrackModel::Point) {
+    // What is determined (rsfm/determinacy.hpp): the refinement's verdict, else none was made.
+    if (refined) {
+      const RefineResult& rf = *r.refined;
+      j["focal_determined"] = rf.focal_determined;
+      if (!rf.focal_determined) {
+        j["focal_estimate_px"] = j["focal_px"];  // the optimum's value, for inspection only
+        j["focal_px"] = nullptr;
+        j["focal_sd_px"] = nullptr;
+        if (rf.focal_interval_px) j["focal_interval_px"] = {(*rf.focal_interval_px)[0], (*rf.focal_interval_px)[1]};
+      }
+      j["plane_determined"] = rf.plane_determined;
+      j["structure_determined"] = std::all_of(rf.plane_determined.begin(), rf.plane_determined.end(), [](bool b) { return b; });
+      j["not_determined_why"] = rf.why;
+      const double sp = res.scale_px;
+      auto sd = [&](int c) { return std::sqrt(std::max(0.0, rf.cov_camera(c, c))); };
+      j["camera"] = {{"principal_point_px", {rf.principal_point_px.x(), rf.principal_point_px.y()}},
+                     {"principal_point_sd_px", {sp * sd(0), sp * sd(1)}},
+                     {"principal_point_estimated", rf.camera_free[0]},
+                     {"principal_point_determined", rf.camera_determined[0] && rf.camera_determined[1]},
+                     {"k1", rf.camera[2]},
+                     {"k2", rf.camera[3]},
+                     {"k_sd", {sd(2), sd(3)}},
+                     {"distortion_estimated", rf.camera_free[2]},
+                     {"distortion_determined", rf.camera_determined[2] && rf.camera_determined[3]}};
+      j["principal_point_px"] = {rf.principal_point_px.x(), rf.principal_point_px.y()};
+      j["radial_distortion"] = {rf.camera[2], rf.camera[3]};
+      j["refinement"] = {{"ok", true},
+                         {"message", rf.message},
+                         {"sigma_px", rf.sigma_px},
+                         {"robust_sigma_px", rf.robust_sigma_px},
+                         {"correlation_inflation", rf.correlation_inflation},
+                         {"tracks", rf.tracks},
+                         {"observations", rf.observations},
+                         {"relabelled_outliers", rf.relabelled},
+                         {"null_space_dim", rf.null_dim},
+                         {"rotation_likelihood_ratio", rf.rotation_lr},
+                         {"translation_significant", rf.translation_significant},
+                         {"undetermined_frames", rf.undetermined_frames},
+                         {"iterations", rf.iterations},
+                         {"initial_rms_px", rf.initial_rms_px},
+                         {"final_rms_px", rf.final_rms_px},
+                         {"seconds", rf.seconds}};
+      j["online"] = finalEstimates(*r.result);
+    } else if (r.refined) {
+      j["refinement"] = {{"ok", false}, {"message", r.refined->message}};
+    }
+  }
   summaryTail(&j, res.stopped, r.command, r.seconds,
               "poses: camera in the reference (first) camera frame, x right, y down, z forward, COP-centred; "
               "normals: unit, reference camera frame, pointing from the camera to the plane (n.X = d > 0); "
@@ -135,10 +216,9 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   return j;
 }
 
-nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesystem::path& dir, AtomicFileSet* files,
-                         bool plots) {
-  const TrackFilterResult& res = *r.result;
-  // trajectory.tum
+namespace {
+
+std::string tumText(const TrackFilterResult& res) {
   std::vector<TumPose> poses;
   for (const auto& f : res.frames) {
     TumPose tp;
@@ -148,24 +228,83 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
   }
   std::ostringstream tum;
   writeTum(tum, poses);
-  const auto tum_tmp = files->write(dir / "trajectory.tum", tum.str());
-  // planes.csv
+  return tum.str();
+}
+
+/// planes.csv rows of one frame's estimate (`estimate`: online or refined).
+std::string planeRows(const TrackFrame& f, double scale_px, const char* estimate) {
+  const double bsd = std::sqrt(std::max(0.0, f.var_beta));
+  const double focal = scale_px / f.beta, fsd = scale_px * bsd / (f.beta * f.beta);
+  if (f.N.empty())
+    return fmt::format("{},-1,NA,NA,NA,NA,NA,NA,{},{},{},{},{},{},{},{}\n", f.frame, num(f.beta), num(bsd), num(focal, 3),
+                       num(fsd, 3), f.used, f.gated, num(f.rms_px, 4), estimate);
+  std::string out;
+  for (size_t p = 0; p < f.N.size(); ++p) {
+    const MetricPlane mp = metricPlane(f.N[p], f.beta, covBetaN(f, static_cast<int>(p)));
+    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, p, num(mp.n.x()), num(mp.n.y()),
+                       num(mp.n.z()), num(mp.sd_angle_deg, 4), num(mp.d), num(mp.sd_d), num(f.beta), num(bsd),
+                       num(focal, 3), num(fsd, 3), f.used, f.gated, num(f.rms_px, 4), estimate);
+  }
+  return out;
+}
+
+/// poses.csv: each frame's pose (as trajectory.tum) with first-order sds of the camera centre
+/// (trajectory units) and of the rotation (deg) from the motion's covariance (the refinement's;
+/// beta's own uncertainty left out), by central differences of the pose map.
+std::string posesCsv(const TrackFilterResult& res, const std::vector<Eigen::Matrix<double, 6, 6>>* cov) {
+  std::string out = "frame,tx,ty,tz,qx,qy,qz,qw,position_sd,rotation_sd_deg\n";
+  for (std::size_t k = 0; k < res.frames.size(); ++k) {
+    const TrackFrame& f = res.frames[k];
+    Eigen::Vector3d p;
+    Eigen::Quaterniond q;
+    poseOf(f, &p, &q);
+    std::string psd = "NA", rsd = "NA";
+    if (cov && k < cov->size()) {
+      // Position as a function of (t_X, t_Y, t_Z beta, omega) about the estimate.
+      auto position = [&](const Eigen::Matrix<double, 6, 1>& d) {
+        const Eigen::Matrix3d R = incrementalRotation(d.tail<3>()) * f.R;
+        const Eigen::Vector3d t(f.t.x() + d[0], f.t.y() + d[1], f.t.z() + d[2] / f.beta);
+        return copCentredPose(R, t, f.beta).position;
+      };
+      Eigen::Matrix<double, 3, 6> J;
+      for (int c = 0; c < 6; ++c) {
+        Eigen::Matrix<double, 6, 1> d = Eigen::Matrix<double, 6, 1>::Zero();
+        const double h = 1e-6 * std::max(1.0, c < 3 ? std::abs(f.t[c]) : 1.0);
+        d[c] = h;
+        const Eigen::Vector3d pp = position(d);
+        d[c] = -h;
+        J.col(c) = (pp - position(d)) / (2 * h);
+      }
+      const Eigen::Matrix<double, 6, 6>& C = (*cov)[k];
+      psd = num(std::sqrt(std::max(0.0, (J * C * J.transpose()).trace())), 4);
+      rsd = num(std::sqrt(std::max(0.0, C.bottomRightCorner<3, 3>().trace())) * 180.0 / M_PI, 4);
+    }
+    out += fmt::format("{},{},{},{},{},{},{},{},{},{}\n", f.frame, num(p.x(), 9), num(p.y(), 9), num(p.z(), 9),
+                       num(q.x(), 9), num(q.y(), 9), num(q.z(), 9), num(q.w(), 9), psd, rsd);
+  }
+  return out;
+}
+
+}  // namespace
+
+nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesystem::path& dir, AtomicFileSet* files,
+                         bool plots) {
+  const bool refined = refinedOk(r);
+  const TrackFilterResult& online = *r.result;
+  const TrackFilterResult& res = refined ? r.refined->state : online;
+  const auto tum_tmp = files->write(dir / "trajectory.tum", tumText(res));
+  if (refined) files->write(dir / "trajectory_online.tum", tumText(online));
+  files->write(dir / "poses.csv", posesCsv(res, refined ? &r.refined->cov_motion : nullptr));
+  // planes.csv: the filter's frame by frame, then the refinement's final estimate.
   std::string pc =
-      "frame,plane,nx,ny,nz,normal_sd_deg,distance,distance_sd,beta,beta_sd,focal_px,focal_sd_px,used,gated,rms_px\n";
-  for (const auto& f : res.frames) {
-    const double bsd = std::sqrt(std::max(0.0, f.var_beta));
-    const double focal = res.scale_px / f.beta, fsd = res.scale_px * bsd / (f.beta * f.beta);
-    if (f.N.empty()) {
-      pc += fmt::format("{},-1,NA,NA,NA,NA,NA,NA,{},{},{},{},{},{},{}\n", f.frame, num(f.beta), num(bsd), num(focal, 3),
-                        num(fsd, 3), f.used, f.gated, num(f.rms_px, 4));
-      continue;
-    }
-    for (size_t p = 0; p < f.N.size(); ++p) {
-      const MetricPlane mp = metricPlane(f.N[p], f.beta, covBetaN(f, static_cast<int>(p)));
-      pc += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, p, num(mp.n.x()), num(mp.n.y()),
-                        num(mp.n.z()), num(mp.sd_angle_deg, 4), num(mp.d), num(mp.sd_d), num(f.beta), num(bsd),
-                        num(focal, 3), num(fsd, 3), f.used, f.gated, num(f.rms_px, 4));
-    }
+      "frame,plane,nx,ny,nz,normal_sd_deg,distance,distance_sd,beta,beta_sd,focal_px,focal_sd_px,used,gated,rms_px,estimate\n";
+  for (const auto& f : online.frames) pc += planeRows(f, online.scale_px, "online");
+  if (refined) {
+    TrackFrame fin = res.frames.back();
+    fin.used = r.refined->observations;
+    fin.gated = r.refined->relabelled;
+    fin.rms_px = r.refined->final_rms_px;
+    pc += planeRows(fin, res.scale_px, "refined");
   }
   const auto planes_tmp = files->write(dir / "planes.csv", pc);
   // labels.csv

@@ -1,6 +1,7 @@
 #include "rsfm/models/radial_camera.hpp"
 
 #include <cmath>
+#include <limits>
 
 namespace rsfm {
 
@@ -47,6 +48,24 @@ bool RadialCamera::invert(const Eigen::Vector4d& c, double beta, const Eigen::Ve
   }
   *h = hd * (r / rd);
   return std::isfinite(r);
+}
+
+double RadialCamera::monotonicRadius(double k1, double k2) {
+  // d r_d / d r = 1 + 3 k1 r^2 + 5 k2 r^4: its first positive root s = r^2 (if any).
+  double s = std::numeric_limits<double>::infinity();
+  if (k2 == 0) {
+    if (k1 < 0) s = -1.0 / (3 * k1);
+  } else {
+    const double a = 5 * k2, b = 3 * k1, disc = b * b - 4 * a;
+    if (disc >= 0) {
+      const double sq = std::sqrt(disc);
+      for (double root : {(-b - sq) / (2 * a), (-b + sq) / (2 * a)})
+        if (root > 0) s = std::min(s, root);
+    }
+  }
+  if (!std::isfinite(s)) return std::numeric_limits<double>::infinity();
+  const double r = std::sqrt(s);
+  return r * (1 + k1 * s + k2 * s * s);
 }
 
 }  // namespace rsfm

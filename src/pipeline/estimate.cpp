@@ -58,6 +58,16 @@ EstimateResult estimate(const Tracks& tracks, const EstimateOptions& o,
   }
   r.filter_used = fopt;
   r.online = runTrackFilter(tracks, pf.labels, fopt, progress);
+  if (o.refine.enabled && r.online.ok() && fopt.model != TrackModel::Point) {
+    r.refined = refine(tracks, pf.labels, r.online, fopt, o.refine);
+    if (r.refined.ok) {
+      say(fmt::format("refine: focal {:.1f} px, {} in {:.2f} s", r.refined.state.scale_px / r.refined.state.frames.back().beta,
+                      r.refined.message, r.refined.seconds));
+      if (!r.refined.why.empty()) say("refine: not determined: " + r.refined.why);
+    } else {
+      say("warning: refinement: " + r.refined.message + "; the online estimate stands");
+    }
+  }
   return r;
 }
 

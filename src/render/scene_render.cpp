@@ -18,6 +18,7 @@
 #include <stdexcept>
 
 #include "rsfm/io/atomic_file.hpp"
+#include "rsfm/models/radial_camera.hpp"
 #include "rsfm/render/determinacy.hpp"
 
 namespace rsfm::render {
@@ -195,26 +196,11 @@ Matrix3d lookAt(const Vector3d& C, const Vector3d& target, double roll) {
   return R;
 }
 
-// Distorted radius (normalized) of an undistorted radius r, and its derivative.
-double distortRadius(double r, double k1, double k2) {
-  const double r2 = r * r;
-  return r * (1 + k1 * r2 + k2 * r2 * r2);
-}
-
-// Undistorted radius of a distorted one inside the monotonic range (Newton from r_d).
+// Undistorted radius (pinhole units) of a distorted one inside the monotonic range.
 double undistortRadius(double rd, double k1, double k2) {
-  double r = rd;
-  for (int i = 0; i < 50; ++i) {
-    const double r2 = r * r;
-    const double g = r * (1 + k1 * r2 + k2 * r2 * r2) - rd;
-    const double dg = 1 + 3 * k1 * r2 + 5 * k2 * r2 * r2;
-    if (!(dg > 1e-9)) break;
-    const double step = g / dg;
-    r -= step;
-    if (r < 0) r = 0.5 * (r + step);
-    if (std::abs(step) < 1e-15 * std::max(1.0, rd)) break;
-  }
-  return r;
+  Eigen::Vector2d h;
+  if (!RadialCamera::invert(Eigen::Vector4d(0, 0, k1, k2), 1.0, Eigen::Vector2d(rd, 0), &h)) return rd;
+  return h.x();
 }
 
 }  // namespace
@@ -261,22 +247,7 @@ double RenderOptions::sweepDeg() const {
   return deg_per_frame > 0 ? deg_per_frame * (movingFrames() - 1) : orbit_deg;
 }
 
-double monotonicDistortedRadius(double k1, double k2) {
-  // d r_d / d r = 1 + 3 k1 r^2 + 5 k2 r^4: its first positive root s = r^2 (if any).
-  double s = std::numeric_limits<double>::infinity();
-  if (k2 == 0) {
-    if (k1 < 0) s = -1.0 / (3 * k1);
-  } else {
-    const double a = 5 * k2, b = 3 * k1, c = 1, disc = b * b - 4 * a * c;
-    if (disc >= 0) {
-      const double sq = std::sqrt(disc);
-      for (double root : {(-b - sq) / (2 * a), (-b + sq) / (2 * a)})
-        if (root > 0) s = std::min(s, root);
-    }
-  }
-  if (!std::isfinite(s)) return std::numeric_limits<double>::infinity();
-  return distortRadius(std::sqrt(s), k1, k2);
-}
+double monotonicDistortedRadius(double k1, double k2) { return RadialCamera::monotonicRadius(k1, k2); }
 
 std::string validate(const RenderOptions& o) {
   if (o.frames < 2 || o.frames > 100000) return fmt::format("--frames must be in [2, 100000], got {}", o.frames);

@@ -37,6 +37,15 @@ struct PlaneBatchOptions {
   /// estimated. None estimated and the state's camera zero: the plain A&P projection (the
   /// experiments' problem, bit for bit).
   std::array<bool, 4> camera_free{false, false, false, false};
+  bool hold_beta = false;  ///< beta held at its start value (a known focal length)
+  /// Eliminate the per-frame motions first (Ceres' Schur ordering; DENSE_SCHUR on what remains:
+  /// references, beta, planes, camera). Fast when there are many frames and a few hundred points
+  /// (the refinement); false: Ceres' own SPARSE_SCHUR ordering (the experiments).
+  bool eliminate_motions_first = false;
+  /// The degenerate alternative for model selection: every frame a pure rotation about the
+  /// centre of projection (planeBatchRotationResidual); translations and planes are not
+  /// parameters (the result keeps them as started).
+  bool rotation_only = false;
   int max_iterations = 200;         ///< Levenberg-Marquardt iterations
   double function_tolerance = 1e-12;
   double parameter_tolerance = 1e-12;
@@ -89,6 +98,14 @@ MeasureStatus planeBatchResidual(const Eigen::Vector3d& t, const Eigen::Vector3d
                                  Eigen::Matrix<double, 2, 3>* J_N, Eigen::Matrix2d* J_ref,
                                  const Eigen::Vector4d* camera = nullptr,
                                  Eigen::Matrix<double, 2, 4>* J_camera = nullptr);
+/// Pure rotation about the centre of projection: the reference ray d = (beta u, beta v, 1) of
+/// `ref` turned by R = R(dq(omega)) R_base, h = (w_x, w_y) / (beta w_z) with w = R d, through the
+/// camera (nullptr: none); Jacobians with respect to omega (2x3), beta, ref (2x2), camera (2x4).
+MeasureStatus planeBatchRotationResidual(const Eigen::Vector3d& omega, const Eigen::Matrix3d& R_base, double beta,
+                                         const Eigen::Vector2d& ref, const Eigen::Vector2d& z, double sigma,
+                                         const Eigen::Vector4d* camera, Eigen::Vector2d* r,
+                                         Eigen::Matrix<double, 2, 3>* J_omega, Eigen::Vector2d* J_beta,
+                                         Eigen::Matrix2d* J_ref, Eigen::Matrix<double, 2, 4>* J_camera);
 /// The frame-0 residual of a point's reference position through the camera: (RadialCamera(ref)
 /// - z) / sigma with its Jacobians (reference 2x2, beta 2x1, camera 2x4).
 void planeBatchReferenceResidual(const Eigen::Vector2d& ref, double beta, const Eigen::Vector4d& camera,
@@ -111,6 +128,7 @@ struct PlaneBatchBoundOptions {
   /// Frames whose motion the observations do not determine (fewer than 4, or a singular block)
   /// are left out and listed in skipped_frames; false: such a frame makes the bound fail.
   bool skip_undetermined_frames = false;
+  bool hold_beta = false;  ///< beta known: not a parameter (beta_estimable false, var_beta 0)
 };
 struct PlaneBatchBound {
   bool ok = false;
@@ -132,7 +150,7 @@ struct PlaneBatchBound {
   // Internal: the kept parameters' pseudo-inverse covariance, scaling and null space.
   Eigen::MatrixXd cov, null_scaled;
   Eigen::VectorXd scale;
-  int beta_index = -1;
+  int beta_index = -1;               ///< -1: beta held
   std::vector<int> N_index;          ///< 3 per plane, -1 for the gauge component
   std::array<int, 4> camera_index{-1, -1, -1, -1};
 };

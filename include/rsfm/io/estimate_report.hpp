@@ -1,6 +1,8 @@
 #pragma once
 // Outputs of `rsfm estimate` / `rsfm run` (docs/outputs.md, "rsfm estimate"): trajectory.tum,
-// planes.csv, summary.json, labels.csv and the plots motion/normals/focal (.png, .svg).
+// planes.csv, summary.json, labels.csv, poses.csv and the plots motion/normals/focal (.png, .svg);
+// with a refinement (pipeline/refine.hpp) its result is the main one and the filter's is kept in
+// trajectory_online.tum, planes.csv's per-frame rows and summary.json's "online" section.
 #include <nlohmann/json.hpp>
 
 #include <filesystem>
@@ -8,6 +10,7 @@
 #include <vector>
 
 #include "rsfm/io/atomic_file.hpp"
+#include "rsfm/pipeline/refine.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
 #include "rsfm/track/tracks.hpp"
 
@@ -16,7 +19,8 @@ namespace rsfm::io {
 struct EstimateReport {
   const Tracks* tracks = nullptr;
   const std::vector<int>* labels = nullptr;  ///< per track id: plane, -1 outlier, -2 unused
-  const TrackFilterResult* result = nullptr;
+  const TrackFilterResult* result = nullptr;  ///< the online filter's run
+  const RefineResult* refined = nullptr;      ///< the refinement (null or not ok: none)
   TrackModel model = TrackModel::Planes;
   std::string command;
   double seconds = 0.0;

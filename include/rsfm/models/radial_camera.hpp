@@ -21,6 +21,9 @@ struct RadialCamera {
   /// The inverse for h (undistortion by Newton's method on the radius; the map must be monotonic
   /// there). Returns false when it does not converge.
   static bool invert(const Eigen::Vector4d& camera, double beta, const Eigen::Vector2d& u, Eigen::Vector2d* h);
+  /// Largest distorted radius (pinhole units) up to which x -> x (1 + k1 r^2 + k2 r^4) is monotonic
+  /// (infinity when it always is): the image must lie within it to be a camera's.
+  static double monotonicRadius(double k1, double k2);
 };
 
 }  // namespace rsfm

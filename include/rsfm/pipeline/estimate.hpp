@@ -14,6 +14,7 @@
 #include <string>
 
 #include "rsfm/pipeline/patch_pipeline.hpp"
+#include "rsfm/pipeline/refine.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
 #include "rsfm/track/patches.hpp"
 #include "rsfm/track/tracks.hpp"
@@ -33,6 +34,8 @@ struct EstimateOptions {
   /// Plane models: start the focal length (unless known), the normals and the relative distances
   /// from the plane finder's homographies. false: every plane frontal at filter.focal0_px.
   bool homography_start = true;
+  /// The final refinement (pipeline/refine.hpp; plane models only): on by default.
+  RefineOptions refine;
 };
 
 struct EstimateResult {
@@ -41,6 +44,11 @@ struct EstimateResult {
   bool start_tried = false;
   TrackFilterOptions filter_used;   ///< the filter's options after the start
   TrackFilterResult online;         ///< the recursive filter's per-frame estimates (online.ok(): every frame)
+  RefineResult refined;             ///< the refinement (refined.ok: the main result; else the online one stands)
+  /// The main result: the refinement's when it succeeded, else the filter's.
+  const TrackFilterResult& main() const { return refined.ok ? refined.state : online; }
+  /// Labels after the refinement's relabelling (the plane finder's when it did not run).
+  const std::vector<int>& labels() const { return refined.ok ? refined.labels : planes.labels; }
 };
 
 /// No plane with enough tracks: bad input a user can act on (options, or another video).

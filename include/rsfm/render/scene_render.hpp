@@ -34,7 +34,7 @@ namespace rsfm::render {
 
 /// Version of the renderer's output for given options: bump it whenever a change alters the
 /// pixels or the truth, so cached renderings (rsfm bench regimes) are made anew.
-inline constexpr int kRendererVersion = 2;
+inline constexpr int kRendererVersion = 3;
 
 /// What is in front of the camera (docs/render.md, "Scenes").
 enum class SceneKind {

@@ -1,0 +1,98 @@
+#pragma once
+// The final refinement (issue 13; docs/estimate.md, "Refinement"): a bundle adjustment of the plane
+// model over all frames, started from the recursive filter, and the uncertainty of its result.
+//
+// Unknowns (rsfm::solvePlaneBatch, the experiments' batch): per frame the motion (R, t), beta,
+// every plane N (plane 0's N_Z held: the filter's scale gauge), every track's reference-frame
+// position (tracks born later anchored by their own observations), and the image-side camera
+// (models/radial_camera.hpp): the principal point and OpenCV's k1, k2, each estimated unless
+// known. Residuals in pixels (through s), under a Huber loss whose scale is `loss_sigmas` times
+// the residuals' robust sd (1.4826 MAD) at the start. Stages: (1) the camera held (principal point
+// at the tracks', no distortion) from the filter's estimate; (2) the camera's free components
+// released from there; an implausible camera (the principal point beyond `max_principal_offset`, a
+// distortion that folds the image) is held again and reported not determined; (3) a track whose
+// residual RMS under that model exceeds `outlier_sigmas` robust sds is relabelled an outlier (-1)
+// and the problem solved again without it.
+//
+// Uncertainty: the Cramer-Rao bound at the solution (rsfm::planeBatchBound, with its null space),
+// with the noise set to the inlier residuals' actual spread sqrt(sum r^2 / (m - n)), inflated for
+// their correlation along tracks (RefineResult::correlation_inflation). A quantity is
+// determined when it is estimable and its sd is within the limits of rsfm/determinacy.hpp; an
+// undetermined focal length is reported with the interval the data support instead of a number.
+// No I/O, no OpenCV.
+#include <Eigen/Core>
+
+#include <array>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "rsfm/pipeline/track_filter.hpp"
+#include "rsfm/track/tracks.hpp"
+
+namespace rsfm {
+
+struct RefineOptions {
+  bool enabled = true;                 ///< false: no refinement (--refine none)
+  bool estimate_principal_point = true;  ///< false: held at the tracks' principal point (known)
+  bool estimate_distortion = true;     ///< false: k1 = k2 = 0 held (known, or the tracks undistorted)
+  double loss_sigmas = 3.0;            ///< Huber scale, in robust sds of the start's residuals
+  double outlier_sigmas = 3.0;         ///< a track whose RMS residual exceeds this many robust sds is an outlier
+  int max_iterations = 50;             ///< Levenberg-Marquardt iterations per solve
+  /// Tracks in the refinement: longest first, a track taken while some frame of its life has
+  /// fewer than this many taken tracks on its plane (<= 0: all). Beyond a few dozen well-spread
+  /// points per plane and frame the estimate gains little, while the cost grows with the square
+  /// of the points seen together (the reduced system over the reference positions).
+  int tracks_per_plane_and_frame = 0;
+  /// Plausibility of the camera: a principal point estimated farther than this fraction of the
+  /// image's larger side from its centre (real cameras' lie within a few %), or a distortion that
+  /// is not monotonic out to the image's corners, is the data pulling the camera somewhere no
+  /// camera is (a scene not quite planar, tracker drift): it is held (centre, k = 0), reported
+  /// not determined, and the problem solved again.
+  double max_principal_offset = 0.10;
+};
+
+struct RefineResult {
+  bool ok = false;           ///< a refined estimate exists (else the online estimate stands; message says why)
+  std::string message;
+  /// The refined sequence in the filter's form: one TrackFrame per frame with the refined R, t,
+  /// beta and N (the same in every frame), their covariances from the bound, the frame's
+  /// observations in `used` and its residual RMS in `rms_px`.
+  TrackFilterResult state;
+  std::vector<Eigen::Matrix<double, 6, 6>> cov_motion;  ///< per frame: (t_X, t_Y, t_Z beta, omega) covariance (zero for frame 0)
+  Eigen::Vector4d camera = Eigen::Vector4d::Zero();     ///< (dc_x, dc_y, k1, k2) (models/radial_camera.hpp)
+  Eigen::Matrix4d cov_camera = Eigen::Matrix4d::Zero();
+  std::array<bool, 4> camera_free{false, false, false, false};
+  std::array<bool, 4> camera_determined{false, false, false, false};
+  Eigen::Vector2d principal_point_px = Eigen::Vector2d::Zero();  ///< nominal + s dc
+  double sigma_px = 0.0;      ///< the inlier residuals' spread sqrt(sum r^2 / (m - n))
+  /// Variance inflation for the residuals' correlation along each track (1 + 2 sum of the pooled
+  /// autocorrelation up to its first non-positive lag): tracker errors drift smoothly, so a
+  /// track's observations are not independent. Every covariance is sigma_px^2 times this.
+  double correlation_inflation = 1.0;
+  double robust_sigma_px = 0.0;  ///< 1.4826 MAD of the final residuals
+  std::vector<int> labels;    ///< per track id after relabelling (outliers -1)
+  int relabelled = 0;         ///< tracks relabelled outliers
+  int tracks = 0, observations = 0;
+  int null_dim = 0;           ///< of the information matrix
+  std::vector<int> undetermined_frames;  ///< frames whose pose the observations do not determine
+  /// Likelihood ratio of the plane model against pure rotation about the centre of projection
+  /// (the same camera), in units of the inflated noise variance, and whether it is significant
+  /// (chi2 with the plane model's extra parameters, 0.1 %). Not significant: the camera only turns,
+  /// and no plane is determined.
+  double rotation_lr = 0.0;
+  bool translation_significant = true;
+  bool focal_determined = false;
+  std::optional<std::array<double, 2>> focal_interval_px;  ///< when not determined: what the data support
+  std::vector<bool> plane_determined;
+  std::string why;            ///< one line on what is not determined and why (empty when all is)
+  int iterations = 0;
+  double initial_rms_px = 0.0, final_rms_px = 0.0;
+  double seconds = 0.0;
+};
+
+/// Refines `online` (the filter's run on `tracks` with `labels` and options `filter`).
+RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterResult& online,
+                    const TrackFilterOptions& filter, const RefineOptions& options = {});
+
+}  // namespace rsfm

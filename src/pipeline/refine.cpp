@@ -1,0 +1,448 @@
+#include "rsfm/pipeline/refine.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "rsfm/batch/plane_batch.hpp"
+#include "rsfm/camera.hpp"
+#include "rsfm/chi2.hpp"
+#include "rsfm/rotation.hpp"
+
+#include <Eigen/Cholesky>
+#include "rsfm/determinacy.hpp"
+#include "rsfm/models/plane_model.hpp"
+#include "rsfm/models/radial_camera.hpp"
+
+namespace rsfm {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / M_PI;
+
+double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
+
+/// The batch problem of the labelled tracks: points, their reference positions (from the
+/// filter), the start state.
+struct Problem {
+  PlaneBatchData data;
+  PlaneBatchState start;
+  std::vector<int> track_of_point;
+};
+
+double robustSd(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  for (double& x : v) x = std::abs(x);
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return 1.4826 * v[v.size() / 2];
+}
+
+/// Residuals (pixels, components) of every observation at `st`, grouped per point.
+std::vector<std::vector<double>> residualsPx(const Problem& p, const PlaneBatchState& st, double s, bool camera) {
+  std::vector<std::vector<double>> out(p.data.labels.size());
+  const int F = static_cast<int>(p.data.frames.size()) - 1;
+  for (int k = 0; k <= F; ++k)
+    for (const Observation& o : p.data.frames[k]) {
+      Eigen::Vector2d r;
+      if (k == 0) {
+        planeBatchReferenceResidual(st.ref[o.id], st.beta, st.camera, o.uv, 1.0, &r, nullptr, nullptr, nullptr);
+      } else if (planeBatchResidual(st.t[k], Eigen::Vector3d::Zero(), st.R[k], st.beta, st.N[p.data.labels[o.id]],
+                                    st.ref[o.id], o.uv, 1.0, &r, nullptr, nullptr, nullptr, nullptr,
+                                    camera ? &st.camera : nullptr, nullptr) != MeasureStatus::Ok) {
+        r = Eigen::Vector2d::Constant(1e3 / s);  // unprojectable: counts as far off
+      }
+      out[o.id].push_back(r.x() * s);
+      out[o.id].push_back(r.y() * s);
+    }
+  return out;
+}
+
+}  // namespace
+
+RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterResult& online,
+                    const TrackFilterOptions& fo, const RefineOptions& ro) {
+  const double t_start = now();
+  RefineResult r;
+  r.labels = labels;
+  const int F = tracks.numFrames();
+  const int m = online.planes;
+  if (!online.ok() || m < 1 || static_cast<int>(online.frames.size()) != F || F < 2) {
+    r.message = m < 1 ? "the point model has no planes to refine" : "no complete online estimate to refine";
+    return r;
+  }
+  const double s = online.scale_px, cx = tracks.image.cx, cy = tracks.image.cy;
+  const auto spans = trackSpans(tracks);
+  const TrackFrame& last = online.frames.back();
+  r.camera_free = {ro.estimate_principal_point, ro.estimate_principal_point, ro.estimate_distortion, ro.estimate_distortion};
+  const bool known_focal = fo.focal_px > 0;
+
+  // Builds the problem over the tracks labelled >= 0 in `lab`, started at `from` (the filter's
+  // state when null) for the points it knows.
+  auto build = [&](const std::vector<int>& lab, const PlaneBatchState* from, const std::vector<int>* from_track_of_point) {
+    Problem p;
+    p.data.frames.resize(F);
+    p.data.num_planes = m;
+    p.data.gauge_plane = 0;
+    p.data.gauge_component = 2;
+    p.start.beta = from ? from->beta : last.beta;
+    p.start.N = from ? from->N : last.N;
+    p.start.camera = from ? from->camera : Eigen::Vector4d::Zero();
+    for (int k = 0; k < F; ++k) {
+      const TrackFrame& f = online.frames[k];
+      p.start.R.push_back(from ? from->R[k] : f.R);
+      p.start.t.push_back(from ? from->t[k] : Eigen::Vector3d(f.t.x(), f.t.y(), f.t.z() * f.beta));
+    }
+    std::vector<int> point_of_track_from;
+    if (from) {
+      point_of_track_from.assign(tracks.idBound(), -1);
+      for (std::size_t i = 0; i < from_track_of_point->size(); ++i) point_of_track_from[(*from_track_of_point)[i]] = static_cast<int>(i);
+    }
+    std::vector<int> point_of_track(tracks.idBound(), -1);
+    for (int id = 0; id < tracks.idBound(); ++id) {
+      if (lab[id] < 0 || lab[id] >= m || spans[id].length() < std::max(2, fo.min_track_frames)) continue;
+      Eigen::Vector2d ref;
+      if (from && point_of_track_from[id] >= 0) {
+        ref = from->ref[point_of_track_from[id]];
+      } else {
+        const int k1 = spans[id].first;
+        const Eigen::Vector2d px = tracks.find(k1, id)->px;
+        const Eigen::Vector2d uv((px.x() - cx) / s, (px.y() - cy) / s);
+        if (k1 == 0) {
+          ref = uv;
+        } else {
+          const TrackFrame& f = online.frames[k1];
+          if (PlaneModel::transferToReference(last.N[lab[id]], f.beta, f.R, f.t, uv, &ref) != MeasureStatus::Ok) continue;
+        }
+      }
+      point_of_track[id] = static_cast<int>(p.track_of_point.size());
+      p.track_of_point.push_back(id);
+      p.data.labels.push_back(lab[id]);
+      p.start.ref.push_back(ref);
+    }
+    for (int k = 0; k < F; ++k)
+      for (const TrackPoint& tp : tracks.frames[k]) {
+        if (tp.id >= static_cast<int>(point_of_track.size()) || point_of_track[tp.id] < 0) continue;
+        p.data.frames[k].push_back({point_of_track[tp.id], Eigen::Vector2d((tp.px.x() - cx) / s, (tp.px.y() - cy) / s)});
+      }
+    return p;
+  };
+
+  auto pooled = [](const std::vector<std::vector<double>>& per) {
+    std::vector<double> all;
+    for (const auto& v : per) all.insert(all.end(), v.begin(), v.end());
+    return all;
+  };
+  PlaneBatchOptions bo;
+  bo.loss = PlaneBatchOptions::Loss::Huber;
+  bo.loss_scale = ro.loss_sigmas;
+  bo.max_iterations = ro.max_iterations;
+  bo.function_tolerance = 1e-7;   // relative cost change: far below the noise's own spread
+  bo.parameter_tolerance = 1e-8;
+  bo.compute_covariance = false;
+  bo.camera_free = r.camera_free;
+  bo.hold_beta = known_focal;  // a known focal length stays known
+  bo.eliminate_motions_first = true;
+  auto solve = [&](Problem& p, double sigma_px, PlaneBatchResult* out) {
+    p.data.sigma_uv = sigma_px / s;
+    *out = solvePlaneBatch(p.data, p.start, bo);
+    return out->converged;
+  };
+
+  // Tracks: the longest first, while some frame of their life lacks tracks on their plane.
+  std::vector<int> selected = labels;
+  if (ro.tracks_per_plane_and_frame > 0) {
+    std::vector<int> order;
+    for (int id = 0; id < tracks.idBound(); ++id)
+      if (labels[id] >= 0 && labels[id] < m && spans[id].length() >= std::max(2, fo.min_track_frames)) order.push_back(id);
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return spans[a].length() > spans[b].length(); });
+    std::vector<std::vector<int>> count(m, std::vector<int>(F, 0));
+    for (int id : order) {
+      auto& c = count[labels[id]];
+      bool needed = false;
+      for (int k = spans[id].first; k <= spans[id].last && !needed; ++k) needed = c[k] < ro.tracks_per_plane_and_frame;
+      if (!needed) {
+        selected[id] = -2;  // not used (still on its plane: not an outlier)
+        continue;
+      }
+      for (int k = spans[id].first; k <= spans[id].last; ++k) ++c[k];
+    }
+  }
+  // 1. The start's residuals set the noise and the loss's scale.
+  Problem p = build(selected, nullptr, nullptr);
+  if (static_cast<int>(p.track_of_point.size()) < 5) {
+    r.message = "fewer than 5 tracks on planes to refine";
+    return r;
+  }
+  const std::vector<double> start_res = pooled(residualsPx(p, p.start, s, false));
+  const double sigma0 = std::max(1e-3, robustSd(start_res));
+  {
+    double ss = 0;
+    for (double x : start_res) ss += x * x;
+    r.initial_rms_px = start_res.empty() ? 0.0 : std::sqrt(ss / start_res.size());
+  }
+  // Stage 1: the camera held (the principal point at the tracks', no distortion): the filter's
+  // start is close to this problem's optimum.
+  const std::array<bool, 4> wanted = r.camera_free;
+  bo.camera_free = {false, false, false, false};
+  PlaneBatchResult res;
+  if (!solve(p, sigma0, &res)) {
+    r.message = "the refinement did not converge: " + res.message;
+    return r;
+  }
+  r.iterations = res.iterations;
+  // Stage 2: the camera released from there. A camera no camera could be (the principal point
+  // beyond max_principal_offset, a distortion folding the image) is held again and the rest
+  // solved once more.
+  std::vector<std::string> why;
+  const double fmax = std::max(tracks.image.width, tracks.image.height);
+  r.camera_free = wanted;
+  for (int round = 0; round < 2 && std::any_of(r.camera_free.begin(), r.camera_free.end(), [](bool b) { return b; }); ++round) {
+    bo.camera_free = r.camera_free;
+    p.start = res.state;
+    PlaneBatchResult rc;
+    if (!solve(p, sigma0, &rc)) {
+      why.push_back("the camera's refinement did not converge (" + rc.message + "); held");
+      r.camera_free = {false, false, false, false};
+      break;
+    }
+    r.iterations += rc.iterations;
+    bool held = false;
+    if (r.camera_free[0]) {
+      const Eigen::Vector2d off = s * rc.state.camera.head<2>();
+      if (off.cwiseAbs().maxCoeff() > ro.max_principal_offset * fmax) {
+        why.push_back(fmt::format("principal point not determined: the data pull it to ({:.0f}, {:.0f}) px, farther than "
+                                  "{:.0f} % of the image from its centre; held at ({:.1f}, {:.1f})",
+                                  cx + off.x(), cy + off.y(), 100 * ro.max_principal_offset, cx, cy));
+        r.camera_free[0] = r.camera_free[1] = false;
+        held = true;
+      }
+    }
+    if (r.camera_free[2]) {
+      const double k1 = rc.state.camera[2], k2 = rc.state.camera[3], f1 = s / rc.state.beta;
+      double rcorner = 0;  // farthest corner, pinhole units
+      const Eigen::Vector2d c(cx + s * rc.state.camera[0], cy + s * rc.state.camera[1]);
+      for (double x : {-0.5, tracks.image.width - 0.5})
+        for (double y : {-0.5, tracks.image.height - 0.5}) rcorner = std::max(rcorner, std::hypot(x - c.x(), y - c.y()) / f1);
+      if (std::abs(k1) > 1 || std::abs(k2) > 1 || rcorner > 0.95 * RadialCamera::monotonicRadius(k1, k2)) {
+        why.push_back(fmt::format("distortion not determined: k1 {:.3f}, k2 {:.3f} would fold the image; held at 0", k1, k2));
+        r.camera_free[2] = r.camera_free[3] = false;
+        held = true;
+      }
+    }
+    if (!held) {
+      res = std::move(rc);
+      break;
+    }
+  }
+  bo.camera_free = r.camera_free;
+  // Stage 3: tracks off their plane under the final model become outliers; solve again without
+  // them, with the noise and the loss's scale from the remaining residuals.
+  {
+    const auto per = residualsPx(p, res.state, s, true);
+    const double sigma1 = std::max(1e-3, robustSd(pooled(per)));
+    std::vector<int> lab = selected;
+    for (std::size_t i = 0; i < per.size(); ++i) {
+      double ss = 0;
+      for (double x : per[i]) ss += x * x;
+      const double rms = per[i].empty() ? 0.0 : std::sqrt(ss / per[i].size());
+      if (rms > ro.outlier_sigmas * sigma1) {
+        lab[p.track_of_point[i]] = -1;
+        ++r.relabelled;
+      }
+    }
+    if (r.relabelled > 0) {
+      Problem q = build(lab, &res.state, &p.track_of_point);
+      PlaneBatchResult res2;
+      if (static_cast<int>(q.track_of_point.size()) >= 5 && solve(q, sigma1, &res2)) {
+        p = std::move(q);
+        res = std::move(res2);
+        r.iterations += res.iterations;
+        for (int id = 0; id < tracks.idBound(); ++id)
+          if (lab[id] == -1 && selected[id] >= 0) r.labels[id] = -1;
+      } else {
+        r.relabelled = 0;  // keep the previous solve
+      }
+    }
+  }
+  // The final residuals' spread, and their correlation along tracks, scale the bound.
+  const PlaneBatchState& st = res.state;
+  const auto per = residualsPx(p, st, s, true);
+  const std::vector<double> all = pooled(per);
+  double ss = 0;
+  for (double x : all) ss += x * x;
+  const int n_cam = static_cast<int>(std::count(r.camera_free.begin(), r.camera_free.end(), true));
+  const int n_params = 6 * (F - 1) + 1 + (3 * m - 1) + 2 * static_cast<int>(p.track_of_point.size()) + n_cam;
+  const int n_res = static_cast<int>(all.size());
+  r.final_rms_px = all.empty() ? 0.0 : std::sqrt(ss / all.size());
+  r.sigma_px = n_res > n_params ? std::sqrt(ss / (n_res - n_params)) : r.final_rms_px;
+  r.robust_sigma_px = robustSd(all);
+  r.tracks = static_cast<int>(p.track_of_point.size());
+  r.observations = n_res / 2;
+  {
+    // Pooled autocorrelation of the residuals along tracks (x and y separately), lags 1..50,
+    // summed up to its first non-positive value.
+    double c0 = 0;
+    for (double x : all) c0 += x * x;
+    double sum_rho = 0;
+    for (int lag = 1; lag <= 50 && c0 > 0; ++lag) {
+      double c = 0;
+      for (const auto& v : per)  // v = (x0, y0, x1, y1, ...)
+        for (std::size_t i = 0; i + 2 * lag + 1 < v.size(); i += 2)
+          c += v[i] * v[i + 2 * lag] + v[i + 1] * v[i + 2 * lag + 1];
+      const double rho = c / c0;
+      if (!(rho > 0)) break;
+      sum_rho += rho;
+    }
+    r.correlation_inflation = 1 + 2 * sum_rho;
+  }
+  const double sigma_final = r.sigma_px * std::sqrt(r.correlation_inflation);
+  p.data.sigma_uv = sigma_final / s;
+  PlaneBatchBoundOptions bopt;
+  bopt.camera_free = r.camera_free;
+  bopt.motion_covariance = true;
+  bopt.skip_undetermined_frames = true;
+  bopt.hold_beta = known_focal;
+  const PlaneBatchBound b = planeBatchBound(p.data, st, bopt);
+  if (!b.ok) {
+    r.message = "the refinement converged but its uncertainty could not be computed: " + b.message;
+    return r;
+  }
+  r.null_dim = b.null_dim;
+  r.undetermined_frames = b.skipped_frames;
+  // Determinacy (rsfm/determinacy.hpp).
+  const double beta = st.beta, f = s / beta;
+  const double focal_sd = known_focal ? 0.0 : b.beta_estimable ? s * std::sqrt(std::max(0.0, b.var_beta)) / (beta * beta) : INFINITY;
+  r.focal_determined = known_focal || (b.beta_estimable && focal_sd / f <= kDeterminedFocalRelSd);
+  if (!r.focal_determined) {
+    const double lo = 0.3 * fmax, hi = 3.0 * fmax;  // the range a camera's focal length can have (the start's grid)
+    // The 95 % interval of beta (in which the model is nearly linear: seed eq. 7) mapped to
+    // f = s / beta, within the range a focal length can have.
+    const double sb = std::sqrt(std::max(0.0, b.var_beta));
+    const double blo = beta - 1.96 * sb, bhi = beta + 1.96 * sb;
+    r.focal_interval_px = b.beta_estimable ? std::array<double, 2>{std::max(lo, s / bhi), blo > 0 ? std::min(hi, s / blo) : hi}
+                                           : std::array<double, 2>{lo, hi};
+    why.push_back(b.beta_estimable ? fmt::format("focal length sd {:.1f} % (limit {:.0f} %)", 100 * focal_sd / f,
+                                                 100 * kDeterminedFocalRelSd)
+                                   : "the focal length is in the null space (e.g. translation only: the affine ambiguity)");
+  }
+  // Is there a translation at all? Without one (a camera turning about its centre of projection)
+  // the planes are not determined whatever their bound says: an optimum that fitted a translation
+  // to the noise sees structure in it. Likelihood ratio against the degenerate model (every frame
+  // a pure rotation, the same camera): its extra residual, in units of the noise variance
+  // (inflated for the correlation), against chi2 with the plane model's extra parameters
+  // (3 per frame for the translation, 3m - 1 for the planes) at 0.1 %: structure is claimed only
+  // on strong evidence.
+  {
+    PlaneBatchOptions ro_opt = bo;
+    ro_opt.rotation_only = true;
+    // Started from the plane model's rotations, a pure rotation that fits converges in a few
+    // iterations; one that does not leaves a residual far beyond the test in as few.
+    ro_opt.max_iterations = 15;
+    p.start = st;
+    p.data.sigma_uv = sigma_final / s;
+    const PlaneBatchResult rot = solvePlaneBatch(p.data, p.start, ro_opt);
+    double ss_rot = 0;
+    for (int k = 0; k < F; ++k)
+      for (const Observation& o : p.data.frames[k]) {
+        Eigen::Vector2d rr;
+        if (k == 0)
+          planeBatchReferenceResidual(rot.state.ref[o.id], rot.state.beta, rot.state.camera, o.uv, 1.0, &rr, nullptr, nullptr,
+                                      nullptr);
+        else if (planeBatchRotationResidual(Eigen::Vector3d::Zero(), rot.state.R[k], rot.state.beta, rot.state.ref[o.id], o.uv,
+                                            1.0, &rot.state.camera, &rr, nullptr, nullptr, nullptr, nullptr) != MeasureStatus::Ok)
+          rr = Eigen::Vector2d::Constant(1e3 / s);
+        ss_rot += rr.squaredNorm() * s * s;
+      }
+    const int dof = 3 * (F - 1) + 3 * m - 1;
+    r.rotation_lr = rot.converged ? (ss_rot - ss) / (r.sigma_px * r.sigma_px * r.correlation_inflation) : INFINITY;
+    r.translation_significant = r.rotation_lr > chi2Quantile(0.999, dof);
+    if (!r.translation_significant)
+      why.push_back(fmt::format("the camera only turns: a pure rotation fits as well (likelihood ratio {:.0f} on {} dof), "
+                                "which shows no structure",
+                                r.rotation_lr, dof));
+  }
+  for (int j = 0; j < m; ++j) {
+    const Eigen::Vector3d N = st.N[j], n = N.normalized();
+    const Eigen::Matrix3d J = (Eigen::Matrix3d::Identity() - n * n.transpose()) / N.norm();
+    const double sd = std::sqrt(std::max(0.0, (J * b.cov_N[j] * J.transpose()).trace())) * kRadToDeg;
+    const bool det = r.translation_significant && b.normal_estimable[j] && sd <= kDeterminedNormalSdDeg;
+    r.plane_determined.push_back(det);
+    if (!det && r.translation_significant)
+      why.push_back(b.normal_estimable[j] ? fmt::format("plane {} normal sd {:.1f} deg (limit {:.0f} deg)", j, sd, kDeterminedNormalSdDeg)
+                                          : fmt::format("plane {} is in the null space (e.g. pure rotation: no parallax)", j));
+  }
+  const double pp_limit = kDeterminedPrincipalPointSdFraction * fmax;
+  for (int c = 0; c < 4; ++c) {
+    if (!r.camera_free[c]) continue;
+    const double sd = std::sqrt(std::max(0.0, b.cov_camera(c, c))) * (c < 2 ? s : 1.0);
+    r.camera_determined[c] = b.camera_estimable[c] && sd <= (c < 2 ? pp_limit : kDeterminedDistortionSd);
+  }
+  if (r.camera_free[0] && !(r.camera_determined[0] && r.camera_determined[1]))
+    why.push_back(fmt::format("principal point not determined (sd {:.1f}, {:.1f} px)", s * std::sqrt(std::max(0.0, b.cov_camera(0, 0))),
+                              s * std::sqrt(std::max(0.0, b.cov_camera(1, 1)))));
+  if (r.camera_free[2] && !(r.camera_determined[2] && r.camera_determined[3]))
+    why.push_back(fmt::format("distortion not determined (sd k1 {:.3f}, k2 {:.3f})", std::sqrt(std::max(0.0, b.cov_camera(2, 2))),
+                              std::sqrt(std::max(0.0, b.cov_camera(3, 3)))));
+  for (std::size_t i = 0; i < why.size(); ++i) r.why += (i ? "; " : "") + why[i];
+  r.camera = st.camera;
+  r.cov_camera = b.cov_camera;
+  r.principal_point_px = Eigen::Vector2d(cx + s * st.camera[0], cy + s * st.camera[1]);
+  r.cov_motion = b.cov_motion;
+  // The refined sequence in the filter's form.
+  TrackFilterResult& out = r.state;
+  out.scale_px = s;
+  out.planes = m;
+  out.plane_tracks.assign(m, 0);
+  out.plane_new_tracks.assign(m, 0);
+  out.transfer_failed.assign(m, 0);
+  std::vector<double> plane_ss(m, 0.0);
+  std::vector<long> plane_n(m, 0);
+  for (std::size_t i = 0; i < p.track_of_point.size(); ++i) {
+    const int l = p.data.labels[i];
+    ++out.plane_tracks[l];
+    if (spans[p.track_of_point[i]].first > 0) ++out.plane_new_tracks[l];
+    for (double x : per[i]) plane_ss[l] += x * x, ++plane_n[l];
+  }
+  for (int j = 0; j < m; ++j) out.plane_rms_px.push_back(plane_n[j] ? std::sqrt(plane_ss[j] / plane_n[j]) : 0.0);
+  std::vector<double> frame_ss(F, 0.0);
+  std::vector<int> frame_n(F, 0);
+  {
+    std::vector<std::size_t> cursor(p.data.labels.size(), 0);
+    for (int k = 0; k < F; ++k)
+      for (const Observation& o : p.data.frames[k]) {
+        const auto& v = per[o.id];
+        frame_ss[k] += v[cursor[o.id]] * v[cursor[o.id]] + v[cursor[o.id] + 1] * v[cursor[o.id] + 1];
+        cursor[o.id] += 2;
+        ++frame_n[k];
+      }
+  }
+  for (int k = 0; k < F; ++k) {
+    TrackFrame tf;
+    tf.frame = online.frames[k].frame;
+    tf.R = st.R[k];
+    tf.t = Eigen::Vector3d(st.t[k].x(), st.t[k].y(), st.t[k].z() / beta);
+    tf.beta = beta;
+    tf.var_beta = b.beta_estimable ? b.var_beta : 0.0;
+    tf.N = st.N;
+    tf.cov_N = b.cov_N;
+    tf.cov_beta_N = b.cov_beta_N;
+    tf.observed = tf.used = frame_n[k];
+    tf.rms_px = frame_n[k] ? std::sqrt(frame_ss[k] / (2.0 * frame_n[k])) : 0.0;
+    out.frames.push_back(tf);
+  }
+  out.passes = 1;
+  out.pass_focal_px = {f};
+  out.pass_N = {st.N};
+  r.ok = true;
+  r.message = fmt::format("camera pp ({:.1f}, {:.1f}) +- ({:.1f}, {:.1f}) px, k1 {:.4f} +- {:.4f}, k2 {:.4f} +- {:.4f}; {} ({} iterations; {} tracks, {} observations, {} relabelled outliers; residual sd {:.3f} px)",
+                          r.principal_point_px.x(), r.principal_point_px.y(), s * std::sqrt(std::max(0.0, r.cov_camera(0, 0))),
+                          s * std::sqrt(std::max(0.0, r.cov_camera(1, 1))), r.camera[2], std::sqrt(std::max(0.0, r.cov_camera(2, 2))),
+                          r.camera[3], std::sqrt(std::max(0.0, r.cov_camera(3, 3))), res.message, r.iterations, r.tracks,
+                          r.observations, r.relabelled, r.sigma_px);
+  r.message += fmt::format(", correlation inflation {:.1f}", r.correlation_inflation);
+  r.seconds = now() - t_start;
+  return r;
+}
+
+}  // namespace rsfm
