@@ -61,7 +61,7 @@ Cli runCli(const fs::path& tracks, const fs::path& out, const std::string& extra
 
 void expectSame(const EstimateResult& lib, const Cli& cli) {
   ASSERT_EQ(cli.code, 0);
-  const TrackFilterResult& r = lib.online;
+  const TrackFilterResult& r = lib.main();  // the refinement's when it ran
   ASSERT_TRUE(r.ok());
   // The same trajectory text (the TUM writer prints doubles in their shortest exact form).
   std::vector<io::TumPose> poses;
@@ -74,7 +74,10 @@ void expectSame(const EstimateResult& lib, const Cli& cli) {
   std::ostringstream os;
   io::writeTum(os, poses);
   EXPECT_EQ(cli.tum, os.str());
-  EXPECT_EQ(cli.summary["focal_px"].get<double>(), r.scale_px / r.frames.back().beta);
+  if (lib.refined.ok && !lib.refined.focal_determined)
+    EXPECT_TRUE(cli.summary["focal_px"].is_null());  // reported not determined, with its interval
+  else
+    EXPECT_EQ(cli.summary["focal_px"].get<double>(), r.scale_px / r.frames.back().beta);
   EXPECT_EQ(cli.summary["planes"].size(), r.frames.back().N.size());
 }
 
@@ -85,6 +88,7 @@ TEST(Pipeline, LibraryCallGivesTheCliNumbers) {
   {
     const EstimateResult lib = estimate(tracks, EstimateOptions{});
     EXPECT_TRUE(lib.start.ok) << lib.start.note;
+    EXPECT_TRUE(lib.refined.ok) << lib.refined.message;
     expectSame(lib, runCli(file, dir / "default", ""));
   }
   {
@@ -95,11 +99,16 @@ TEST(Pipeline, LibraryCallGivesTheCliNumbers) {
     o.filter.passes = 3;
     o.filter.filter.iterations = 2;
     o.filter.filter.q_motion[3] = o.filter.filter.q_motion[4] = o.filter.filter.q_motion[5] = 4e-4;
+    o.refine.enabled = false;
     const EstimateResult lib = estimate(tracks, o);
-    const Cli cli = runCli(file, dir / "options", "--normal-sd0 0.3 --beta-sd0 0.2 --passes 3 --iterations 2 --q-omega 4e-4");
+    EXPECT_FALSE(lib.refined.ok);
+    const Cli cli =
+        runCli(file, dir / "options", "--normal-sd0 0.3 --beta-sd0 0.2 --passes 3 --iterations 2 --q-omega 4e-4 --refine none");
     expectSame(lib, cli);
     // And they took effect: not the default run's numbers.
-    const EstimateResult def = estimate(tracks, EstimateOptions{});
+    EstimateOptions d;
+    d.refine.enabled = false;
+    const EstimateResult def = estimate(tracks, d);
     EXPECT_NE(def.online.frames.back().beta, lib.online.frames.back().beta);
     EXPECT_EQ(lib.filter_used.normal_sd0.value(), 0.3);
     EXPECT_EQ(def.filter_used.normal_sd0.value(), 0.1);  // after the homography start

@@ -288,6 +288,25 @@ class RotationObservationCost final : public ceres::CostFunction {
   bool camera_;
 };
 
+/// Gaussian priors on the camera's components about zero: (camera_c / sd_c) for sd_c > 0.
+class CameraPriorCost final : public ceres::SizedCostFunction<4, 4> {
+ public:
+  explicit CameraPriorCost(const std::array<double, 4>& sd) {
+    for (int c = 0; c < 4; ++c) w_[c] = sd[c] > 0 ? 1.0 / sd[c] : 0.0;
+  }
+  bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
+    for (int c = 0; c < 4; ++c) residuals[c] = params[0][c] * w_[c];
+    if (jacobians && jacobians[0]) {
+      for (int i = 0; i < 16; ++i) jacobians[0][i] = 0.0;
+      for (int c = 0; c < 4; ++c) jacobians[0][5 * c] = w_[c];
+    }
+    return true;
+  }
+
+ private:
+  std::array<double, 4> w_{};
+};
+
 /// Reference-frame observation through the camera: blocks ref (2), beta (1), camera (4).
 class ReferenceCameraCost final : public ceres::SizedCostFunction<2, 2, 1, 4> {
  public:
@@ -376,10 +395,26 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   // Parameter storage (Ceres keeps pointers into these).
   std::vector<Eigen::Matrix<double, 6, 1>> motion(F + 1, Eigen::Matrix<double, 6, 1>::Zero());
   for (int k = 1; k <= F; ++k) motion[k].head<3>() = start.t[k];
-  double beta = start.beta;
-  std::vector<Eigen::Vector3d> N = start.N;
-  std::vector<Eigen::Vector2d> ref = start.ref;
-  Eigen::Vector4d camera = start.camera;
+  // One buffer for every parameter but the motions, in a fixed order (beta, the planes, the
+  // camera, the references): Ceres orders the blocks of one elimination group by address, so
+  // this layout fixes the arithmetic whatever the heap looked like (every caller gets the same
+  // numbers for the same problem).
+  const int m = data.num_planes;
+  std::vector<double> store(1 + 3 * m + 4 + 2 * P);
+  double& beta = store[0];
+  beta = start.beta;
+  std::vector<Eigen::Map<Eigen::Vector3d>> N;
+  for (int j = 0; j < m; ++j) {
+    N.emplace_back(store.data() + 1 + 3 * j);
+    N.back() = start.N[j];
+  }
+  Eigen::Map<Eigen::Vector4d> camera(store.data() + 1 + 3 * m);
+  camera = start.camera;
+  std::vector<Eigen::Map<Eigen::Vector2d>> ref;
+  for (int i = 0; i < P; ++i) {
+    ref.emplace_back(store.data() + 1 + 3 * m + 4 + 2 * i);
+    ref.back() = start.ref[i];
+  }
   const bool use_camera = std::any_of(options.camera_free.begin(), options.camera_free.end(), [](bool b) { return b; }) ||
                           !camera.isZero(0.0);
   ceres::LossFunction* loss = nullptr;  // one instance for every residual, owned by loss_owner
@@ -410,6 +445,11 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
       problem.SetParameterBlockConstant(camera.data());
     else if (!held.empty())
       problem.SetManifold(camera.data(), new ceres::SubsetManifold(4, held));
+    std::array<double, 4> prior{0, 0, 0, 0};
+    for (int c = 0; c < 4; ++c)
+      if (options.camera_free[c]) prior[c] = options.camera_prior_sd[c];
+    if (std::any_of(prior.begin(), prior.end(), [](double v) { return v > 0; }))
+      problem.AddResidualBlock(new CameraPriorCost(prior), nullptr, camera.data());
   }
   if (options.estimate_references) {
     for (const Observation& o : data.frames[0]) {
@@ -439,7 +479,7 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
       if (options.estimate_references) blocks.push_back(ref[o.id].data());
       if (use_camera) blocks.push_back(camera.data());
       problem.AddResidualBlock(
-          new ObservationCost(start.R[k], o.uv, data.sigma_uv, options.estimate_references ? nullptr : &ref[o.id], use_camera,
+          new ObservationCost(start.R[k], o.uv, data.sigma_uv, options.estimate_references ? nullptr : &start.ref[o.id], use_camera,
                               &motion_cache[k], &point_cache[o.id]),
           loss, blocks);
       ++res.residuals;
@@ -486,8 +526,8 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
     res.state.t[k] = motion[k].head<3>();
   }
   res.state.beta = beta;
-  res.state.N = N;
-  res.state.ref = ref;
+  res.state.N.assign(N.begin(), N.end());
+  res.state.ref.assign(ref.begin(), ref.end());
   res.state.camera = camera;
 
   if (options.compute_covariance && res.converged && !options.hold_beta && !options.rotation_only) {

@@ -62,6 +62,9 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
   const std::array<int, 4>& iC = out.camera_index;
   out.parameters = n;
   Eigen::MatrixXd S = Eigen::MatrixXd::Zero(n, n);
+  // Priors on the free camera components.
+  for (int c = 0; c < 4; ++c)
+    if (iC[c] >= 0 && opt.camera_prior_sd[c] > 0) S(iC[c], iC[c]) += 1.0 / (opt.camera_prior_sd[c] * opt.camera_prior_sd[c]);
   // Frame 0: reference residuals (RadialCamera(ref) - z) / sigma.
   for (const Observation& o : data.frames[0]) {
     if (o.id < 0 || o.id >= P) continue;

@@ -142,6 +142,10 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   bo.compute_covariance = false;
   bo.camera_free = r.camera_free;
   bo.hold_beta = known_focal;  // a known focal length stays known
+  {
+    const double pp_sd = ro.principal_point_prior_sd * std::max(tracks.image.width, tracks.image.height) / s;
+    bo.camera_prior_sd = {pp_sd, pp_sd, ro.distortion_prior_sd, ro.distortion_prior_sd};
+  }
   bo.eliminate_motions_first = true;
   auto solve = [&](Problem& p, double sigma_px, PlaneBatchResult* out) {
     p.data.sigma_uv = sigma_px / s;
@@ -300,6 +304,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   p.data.sigma_uv = sigma_final / s;
   PlaneBatchBoundOptions bopt;
   bopt.camera_free = r.camera_free;
+  bopt.camera_prior_sd = bo.camera_prior_sd;
   bopt.motion_covariance = true;
   bopt.skip_undetermined_frames = true;
   bopt.hold_beta = known_focal;

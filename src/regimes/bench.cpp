@@ -130,6 +130,50 @@ std::optional<double> optNum(const json& j, const char* key) {
   return std::nullopt;
 }
 
+/// One estimate (the main one, or summary.json's "online" section) against the truth.
+struct ViewScore {
+  std::optional<double> focal_err_pct;
+  std::optional<bool> focal_in_95;
+  std::optional<double> worst_normal_err_deg;
+  int normals_in_95 = 0;
+  int reported_undetermined = 0;  ///< determinable quantities the estimate marks not determined
+};
+
+ViewScore scoreView(const json& v, const io::Summary& truth, bool focal_determinable, bool structure_determinable,
+                    const std::vector<Eigen::Vector3d>& est_planes, const std::vector<double>& est_distances, double scale) {
+  ViewScore out;
+  // Focal length: the reported 95 % interval is f +- 1.96 sd, or the interval given when not determined.
+  const bool focal_marked = v.contains("focal_determined") && v["focal_determined"] == false;
+  const std::optional<double> f = v.contains("focal_px") && v["focal_px"].is_number() ? optNum(v, "focal_px") : optNum(v, "focal_estimate_px");
+  if (truth.focal_px && f) out.focal_err_pct = 100.0 * (*f - *truth.focal_px) / *truth.focal_px;
+  if (truth.focal_px && focal_determinable) {
+    if (focal_marked) {
+      ++out.reported_undetermined;
+      if (v.contains("focal_interval_px"))
+        out.focal_in_95 = *truth.focal_px >= v["focal_interval_px"][0].get<double>() &&
+                          *truth.focal_px <= v["focal_interval_px"][1].get<double>();
+    } else if (f && v.contains("focal_sd_px") && v["focal_sd_px"].is_number()) {
+      out.focal_in_95 = std::abs(*f - *truth.focal_px) <= kFocal95 * v["focal_sd_px"].get<double>();
+    }
+  }
+  // Normals: a plane reported not determined covers any direction.
+  const eval::PlaneMatch pm = eval::matchPlanes(truth.planes, truth.plane_distances, est_planes, est_distances, scale);
+  std::vector<double> sd;
+  if (v.contains("plane_normal_sd_deg"))
+    for (const auto& x : v["plane_normal_sd_deg"]) sd.push_back(x.is_number() ? x.get<double>() : -1);
+  for (std::size_t i = 0; i < truth.planes.size(); ++i) {
+    const int e = pm.estimate_of_truth[i];
+    if (e < 0) continue;
+    const double err = pm.angle_deg[i];
+    out.worst_normal_err_deg = std::max(out.worst_normal_err_deg.value_or(0.0), err);
+    const bool marked = v.contains("plane_determined") && e < static_cast<int>(v["plane_determined"].size()) &&
+                        v["plane_determined"][e] == false;
+    if (marked && structure_determinable) ++out.reported_undetermined;
+    if (marked || (e < static_cast<int>(sd.size()) && sd[e] >= 0 && err <= kNormal95 * sd[e])) ++out.normals_in_95;
+  }
+  return out;
+}
+
 /// Fills the rsfm-estimate part of a row from DIR/summary.json and, with a truth directory, the
 /// evaluation against it.
 void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir) {
@@ -141,7 +185,7 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
     row.message += (row.message.empty() ? "" : "; ") + std::string("summary.json unreadable: ") + e.what();
     return;
   }
-  row.focal_est = optNum(s, "focal_px");
+  row.focal_est = s.contains("focal_px") && s["focal_px"].is_number() ? optNum(s, "focal_px") : optNum(s, "focal_estimate_px");
   row.focal_sd = optNum(s, "focal_sd_px");
   if (s.contains("planes") && s["planes"].is_array()) row.planes_found = static_cast<int>(s["planes"].size());
   {
@@ -174,11 +218,6 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
     row.focal_determinable = truth.determinable->focal;
     row.structure_determinable = truth.determinable->structure;
   }
-  if (row.focal_true && row.focal_est) {
-    row.focal_err_pct = 100.0 * (*row.focal_est - *row.focal_true) / *row.focal_true;
-    if (row.focal_sd && row.focal_determinable)
-      row.focal_in_95 = std::abs(*row.focal_est - *row.focal_true) <= kFocal95 * *row.focal_sd;
-  }
   // Planes: the evaluator's matching (distances break ties between parallel planes), with the
   // Sim(3) scale when the trajectories align.
   double scale = 1;
@@ -193,20 +232,40 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
   } catch (const std::exception& e) {
     row.message += (row.message.empty() ? "" : "; ") + std::string("evaluate: ") + e.what();
   }
-  const eval::PlaneMatch pm = eval::matchPlanes(truth.planes, truth.plane_distances, est.planes, est.plane_distances, scale);
-  std::vector<double> sd;
-  if (s.contains("plane_normal_sd_deg"))
-    for (const auto& v : s["plane_normal_sd_deg"]) sd.push_back(v.is_number() ? v.get<double>() : -1);
-  std::vector<int> matched;
-  for (std::size_t i = 0; i < truth.planes.size(); ++i) {
-    const int e = pm.estimate_of_truth[i];
-    if (e < 0) continue;
-    matched.push_back(static_cast<int>(i));
-    ++row.planes_matched;
-    const double err = pm.angle_deg[i];
-    row.worst_normal_err_deg = std::max(row.worst_normal_err_deg.value_or(0.0), err);
-    if (e < static_cast<int>(sd.size()) && sd[e] >= 0 && err <= kNormal95 * sd[e]) ++row.normals_in_95;
+  {
+    const ViewScore v = scoreView(s, truth, row.focal_determinable, row.structure_determinable, est.planes,
+                                  est.plane_distances, scale);
+    row.focal_err_pct = v.focal_err_pct;
+    row.focal_in_95 = v.focal_in_95;
+    row.worst_normal_err_deg = v.worst_normal_err_deg;
+    row.normals_in_95 = v.normals_in_95;
+    row.reported_undetermined = v.reported_undetermined;
   }
+  if (s.contains("online") && s["online"].is_object()) {
+    // The recursive filter's own estimate (kept beside the refinement's).
+    const json& o = s["online"];
+    std::vector<Eigen::Vector3d> planes;
+    std::vector<double> dist;
+    for (const auto& n : o["planes"]) planes.emplace_back(n[0].get<double>(), n[1].get<double>(), n[2].get<double>());
+    for (const auto& d : o["plane_distances"]) dist.push_back(d.get<double>());
+    const ViewScore v = scoreView(o, truth, row.focal_determinable, row.structure_determinable, planes, dist, scale);
+    row.online_focal_err_pct = v.focal_err_pct;
+    row.online_focal_in_95 = v.focal_in_95;
+    row.online_worst_normal_err_deg = v.worst_normal_err_deg;
+    row.online_normals_in_95 = v.normals_in_95;
+  } else {
+    row.online_focal_err_pct = row.focal_err_pct;
+    row.online_focal_in_95 = row.focal_in_95;
+    row.online_worst_normal_err_deg = row.worst_normal_err_deg;
+    row.online_normals_in_95 = row.normals_in_95;
+  }
+  const eval::PlaneMatch pm = eval::matchPlanes(truth.planes, truth.plane_distances, est.planes, est.plane_distances, scale);
+  std::vector<int> matched;
+  for (std::size_t i = 0; i < truth.planes.size(); ++i)
+    if (pm.estimate_of_truth[i] >= 0) {
+      matched.push_back(static_cast<int>(i));
+      ++row.planes_matched;
+    }
   for (std::size_t x = 0; x < matched.size(); ++x)
     for (std::size_t y = x + 1; y < matched.size(); ++y) {
       const int i = matched[x], j = matched[y];
@@ -504,7 +563,8 @@ struct Aggregate {
   int sequences = 0, to_end = 0;
   int cover_pairs = 0, covered = 0;   // (sequence, determinable quantity) pairs; truth inside the 95 % interval
   int focal_pairs = 0, focal_cov = 0, normal_pairs = 0, normal_cov = 0;
-  std::vector<double> focal_err, normal_err, face_err, ate;
+  int online_focal_cov = 0, online_normal_cov = 0, reported_undetermined = 0;
+  std::vector<double> focal_err, normal_err, face_err, ate, online_focal_err, online_normal_err;
   int undet = 0, undet_marked = 0, undet_confident = 0, undet_none = 0;
 };
 
@@ -517,12 +577,17 @@ Aggregate aggregate(const std::vector<Row>& rows) {
     if (r.focal_determinable && r.focal_true) {
       ++a.focal_pairs;
       a.focal_cov += r.focal_in_95.value_or(false);
+      a.online_focal_cov += r.online_focal_in_95.value_or(false);
       if (r.focal_err_pct) a.focal_err.push_back(std::abs(*r.focal_err_pct));
+      if (r.online_focal_err_pct) a.online_focal_err.push_back(std::abs(*r.online_focal_err_pct));
     }
+    a.reported_undetermined += r.reported_undetermined;
     if (r.structure_determinable) {
       a.normal_pairs += r.planes_true;
       a.normal_cov += r.normals_in_95;
+      a.online_normal_cov += r.online_normals_in_95;
       if (r.worst_normal_err_deg) a.normal_err.push_back(*r.worst_normal_err_deg);
+      if (r.online_worst_normal_err_deg) a.online_normal_err.push_back(*r.online_worst_normal_err_deg);
       if (r.face_angle_err_deg) a.face_err.push_back(*r.face_angle_err_deg);
     }
     if (r.ate_pct && r.structure_determinable) a.ate.push_back(*r.ate_pct);
@@ -542,7 +607,8 @@ const char* kCsvHeader =
     "sequence,kind,axes,frames,exit_code,message,frames_processed,seconds,fps,truth_check_px,focal_true_px,"
     "focal_est_px,focal_sd_px,focal_err_pct,focal_in_95,focal_determinable,planes_true,planes_found,planes_matched,"
     "worst_normal_err_deg,normals_in_95,structure_determinable,face_angle_err_deg,face_angle_deg,ate_pct,"
-    "rpe_trans_pct,rpe_rot_deg,undetermined,k1_true,k1_est";
+    "rpe_trans_pct,rpe_rot_deg,undetermined,reported_undetermined,online_focal_err_pct,online_focal_in_95,"
+    "online_worst_normal_err_deg,online_normals_in_95,k1_true,k1_est";
 
 }  // namespace
 
@@ -551,7 +617,7 @@ std::string scoreboardCsv(const BenchResult& res) {
   for (const Row& r : res.rows) {
     const std::string fps =
         r.seconds > 0 && r.kind != "colmap" && r.exit_code == 0 ? fmt::format("{:.1f}", r.frames / r.seconds) : std::string();
-    s += fmt::format("{},{},{},{},{},{},{},{:.2f},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+    s += fmt::format("{},{},{},{},{},{},{},{:.2f},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                      csvField(r.sequence), r.kind, csvField(r.axes), r.frames, r.exit_code, csvField(r.message),
                      r.frames_processed, r.seconds, fps, fmtOpt(r.truth_check_px, "{:.3f}"),
                      fmtOpt(r.focal_true, "{:.1f}"), fmtOpt(r.focal_est, "{:.1f}"), fmtOpt(r.focal_sd, "{:.2f}"),
@@ -559,7 +625,10 @@ std::string scoreboardCsv(const BenchResult& res) {
                      r.planes_true, r.planes_found, r.planes_matched, fmtOpt(r.worst_normal_err_deg, "{:.2f}"),
                      r.normals_in_95, r.structure_determinable ? "yes" : "no", fmtOpt(r.face_angle_err_deg, "{:.2f}"),
                      fmtOpt(r.face_angle_deg, "{:.2f}"), fmtOpt(r.ate_pct, "{:.2f}"), fmtOpt(r.rpe_trans_pct, "{:.3f}"),
-                     fmtOpt(r.rpe_rot_deg, "{:.3f}"), r.undetermined, fmtOpt(r.k1_true, "{:.4f}"), fmtOpt(r.k1_est, "{:.4f}"));
+                     fmtOpt(r.rpe_rot_deg, "{:.3f}"), r.undetermined, r.reported_undetermined,
+                     fmtOpt(r.online_focal_err_pct, "{:.2f}"), fmtBool(r.online_focal_in_95),
+                     fmtOpt(r.online_worst_normal_err_deg, "{:.2f}"), r.online_normals_in_95, fmtOpt(r.k1_true, "{:.4f}"),
+                     fmtOpt(r.k1_est, "{:.4f}"));
   }
   // Aggregate rows (docs/regimes.md): shares in the boolean columns, medians / worst in the error columns.
   const Aggregate a = aggregate(res.rows);
@@ -568,13 +637,16 @@ std::string scoreboardCsv(const BenchResult& res) {
   auto worst = [](const std::vector<double>& v) {
     return v.empty() ? std::string() : fmt::format("{:.2f}", *std::max_element(v.begin(), v.end()));
   };
-  s += fmt::format("aggregate:share,aggregate,rendered,{},,run to the end {}/{}; truth in 95 % {}/{},{},,,,,,,,{},,,,,,{},,,,,,,,,\n",
+  s += fmt::format("aggregate:share,aggregate,rendered,{},,run to the end {}/{}; truth in 95 % {}/{},{},,,,,,,,,{},,,,,,{},,,,,,,,,{},,{},,\n",
                    a.sequences, a.to_end, a.sequences, a.covered, a.cover_pairs, share(a.to_end, a.sequences),
-                   share(a.focal_cov, a.focal_pairs), share(a.normal_cov, a.normal_pairs));
-  s += fmt::format("aggregate:median,aggregate,rendered,{},,median of |error| over sequences,,,,,,,,{},,,,,,{},,,{},,{},,,,,\n",
-                   a.sequences, med(a.focal_err), med(a.normal_err), med(a.face_err), med(a.ate));
-  s += fmt::format("aggregate:worst,aggregate,rendered,{},,worst |error| over sequences,,,,,,,,{},,,,,,{},,,{},,{},,,,,\n",
-                   a.sequences, worst(a.focal_err), worst(a.normal_err), worst(a.face_err), worst(a.ate));
+                   share(a.focal_cov, a.focal_pairs), share(a.normal_cov, a.normal_pairs),
+                   share(a.online_focal_cov, a.focal_pairs), share(a.online_normal_cov, a.normal_pairs));
+  s += fmt::format("aggregate:median,aggregate,rendered,{},,median of |error| over sequences,,,,,,,{},,,,,,{},,,{},,{},,,,,{},,{},,,\n",
+                   a.sequences, med(a.focal_err), med(a.normal_err), med(a.face_err), med(a.ate), med(a.online_focal_err),
+                   med(a.online_normal_err));
+  s += fmt::format("aggregate:worst,aggregate,rendered,{},,worst |error| over sequences,,,,,,,{},,,,,,{},,,{},,{},,,,,{},,{},,,\n",
+                   a.sequences, worst(a.focal_err), worst(a.normal_err), worst(a.face_err), worst(a.ate),
+                   worst(a.online_focal_err), worst(a.online_normal_err));
   return s;
 }
 
@@ -592,10 +664,15 @@ std::string scoreboardMarkdown(const BenchResult& res, const std::string& invoca
   s += "## Aggregate (rendered sequences)\n\n| measure | value |\n|---|---|\n";
   s += fmt::format("| sequences run to the end | {} |\n", pct(a.to_end, a.sequences));
   s += fmt::format("| truth inside the reported 95 % interval, all (sequence, quantity) pairs | {} |\n", pct(a.covered, a.cover_pairs));
-  s += fmt::format("| &nbsp; focal length | {} |\n", pct(a.focal_cov, a.focal_pairs));
-  s += fmt::format("| &nbsp; plane normals | {} |\n", pct(a.normal_cov, a.normal_pairs));
+  s += fmt::format("| &nbsp; focal length | {} (filter alone: {}) |\n", pct(a.focal_cov, a.focal_pairs),
+                   pct(a.online_focal_cov, a.focal_pairs));
+  s += fmt::format("| &nbsp; plane normals | {} (filter alone: {}) |\n", pct(a.normal_cov, a.normal_pairs),
+                   pct(a.online_normal_cov, a.normal_pairs));
+  s += fmt::format("| determinable quantities reported not determined | {} |\n", a.reported_undetermined);
   s += fmt::format("| focal error, determinable sequences | {} |\n", medw(a.focal_err, " %"));
+  s += fmt::format("| &nbsp; the filter alone | {} |\n", medw(a.online_focal_err, " %"));
   s += fmt::format("| worst normal error per sequence | {} |\n", medw(a.normal_err, " deg"));
+  s += fmt::format("| &nbsp; the filter alone | {} |\n", medw(a.online_normal_err, " deg"));
   s += fmt::format("| face angle error | {} |\n", medw(a.face_err, " deg"));
   s += fmt::format("| ATE (% of scene size) | {} |\n", medw(a.ate, " %"));
   s += fmt::format("| sequences with an undeterminable quantity: marked / no output / confident | {} / {} / {} of {} |\n\n",
@@ -691,6 +768,11 @@ std::string scoreboardJson(const BenchResult& res, const std::string& invocation
                     {"truth_in_95", ratio(a.covered, a.cover_pairs)},
                     {"focal_in_95", ratio(a.focal_cov, a.focal_pairs)},
                     {"normals_in_95", ratio(a.normal_cov, a.normal_pairs)},
+                    {"online_focal_in_95", ratio(a.online_focal_cov, a.focal_pairs)},
+                    {"online_normals_in_95", ratio(a.online_normal_cov, a.normal_pairs)},
+                    {"online_focal_err_pct", stat(a.online_focal_err)},
+                    {"online_worst_normal_err_deg", stat(a.online_normal_err)},
+                    {"reported_undetermined", a.reported_undetermined},
                     {"focal_err_pct", stat(a.focal_err)},
                     {"worst_normal_err_deg", stat(a.normal_err)},
                     {"face_angle_err_deg", stat(a.face_err)},
@@ -727,6 +809,11 @@ std::string scoreboardJson(const BenchResult& res, const std::string& invocation
                          {"rpe_trans_pct", opt(r.rpe_trans_pct)},
                          {"rpe_rot_deg", opt(r.rpe_rot_deg)},
                          {"undetermined", r.undetermined},
+                         {"reported_undetermined", r.reported_undetermined},
+                         {"online_focal_err_pct", opt(r.online_focal_err_pct)},
+                         {"online_focal_in_95", r.online_focal_in_95 ? nlohmann::ordered_json(*r.online_focal_in_95) : nlohmann::ordered_json(nullptr)},
+                         {"online_worst_normal_err_deg", opt(r.online_worst_normal_err_deg)},
+                         {"online_normals_in_95", r.online_normals_in_95},
                          {"k1_true", opt(r.k1_true)},
                          {"k1_est", opt(r.k1_est)}});
   return j.dump(2) + "\n";

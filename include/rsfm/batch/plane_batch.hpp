@@ -37,6 +37,9 @@ struct PlaneBatchOptions {
   /// estimated. None estimated and the state's camera zero: the plain A&P projection (the
   /// experiments' problem, bit for bit).
   std::array<bool, 4> camera_free{false, false, false, false};
+  /// Gaussian priors on the free camera components, centred on zero (the nominal principal
+  /// point, no distortion): sd in the components' units (normalized for dc, none for k); 0: none.
+  std::array<double, 4> camera_prior_sd{0, 0, 0, 0};
   bool hold_beta = false;  ///< beta held at its start value (a known focal length)
   /// Eliminate the per-frame motions first (Ceres' Schur ordering; DENSE_SCHUR on what remains:
   /// references, beta, planes, camera). Fast when there are many frames and a few hundred points
@@ -124,6 +127,7 @@ struct PlaneBatchBoundOptions {
   /// Camera components (dc_x, dc_y, k1, k2) that are parameters of the bound (the state's camera
   /// enters the residuals whenever it is non-zero or a component is free).
   std::array<bool, 4> camera_free{false, false, false, false};
+  std::array<double, 4> camera_prior_sd{0, 0, 0, 0};  ///< as PlaneBatchOptions'
   bool motion_covariance = false;  ///< also each frame's 6x6 motion covariance (back-substitution)
   /// Frames whose motion the observations do not determine (fewer than 4, or a singular block)
   /// are left out and listed in skipped_frames; false: such a frame makes the bound fail.

@@ -50,6 +50,12 @@ struct RefineOptions {
   /// camera is (a scene not quite planar, tracker drift): it is held (centre, k = 0), reported
   /// not determined, and the problem solved again.
   double max_principal_offset = 0.10;
+  /// Priors when estimated (what is known of cameras before the data speak): the principal point
+  /// about the image centre with this sd (fraction of the larger side), k1 and k2 about 0. They
+  /// keep what the data barely see from wandering, and their spread enters the focal length's sd
+  /// (a principal point the data cannot place makes the focal length less certain, not free).
+  double principal_point_prior_sd = 0.03;
+  double distortion_prior_sd = 0.25;
 };
 
 struct RefineResult {

@@ -47,6 +47,12 @@ struct Row {
   int planes_true = 0, planes_found = 0, planes_matched = 0;
   std::optional<double> worst_normal_err_deg;
   int normals_in_95 = 0;                  ///< matched planes whose normal error is inside the 95 % region
+  int reported_undetermined = 0;          ///< determinable quantities the estimate reports not determined
+  /// The recursive filter's own estimate (summary.json's "online"; the main one without a refinement).
+  std::optional<double> online_focal_err_pct;
+  std::optional<bool> online_focal_in_95;
+  std::optional<double> online_worst_normal_err_deg;
+  int online_normals_in_95 = 0;
   std::optional<double> face_angle_err_deg;  ///< worst |angle between two estimated planes - true angle|
   std::optional<double> face_angle_deg;   ///< real rows: the angle between the two planes with the most tracks
   std::optional<double> ate_pct;          ///< ATE RMSE, % of the scene size (or of the trajectory's extent)
