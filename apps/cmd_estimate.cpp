@@ -17,6 +17,7 @@
 #include "rsfm/pipeline/patch_pipeline.hpp"
 #include "rsfm/io/tracks_io.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
+#include "rsfm/vision/camera_file.hpp"
 #include "rsfm/vision/overlay.hpp"
 #include "rsfm/vision/plane_finder.hpp"
 #include "rsfm/vision/plane_init.hpp"
@@ -43,6 +44,8 @@ struct EstimateCli {
   std::string plane_rois;       ///< "x,y,...;x,y,..."
   std::optional<double> beta_sd0;  ///< --beta-sd0: either pipeline's
   std::string refine = "final";    ///< --refine final | none
+  std::string camera_file;         ///< --camera FILE
+  std::vector<double> principal_point;  ///< --principal-point X,Y
   bool plots = true;
   bool quiet = false;
   std::string out = "out";
@@ -113,6 +116,12 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--depth0", f.depth0, "start: planes frontal at this many (initial) focal lengths (scale gauge)")
       ->capture_default_str();
   a->add_flag("!--no-new-tracks", f.add_new_tracks, "only tracks of the reference frame enter the plane models");
+  a->add_option("--camera", e->camera_file,
+                "a calibrated camera (OpenCV FileStorage YAML/XML: camera_matrix, distortion_coefficients, image_width, "
+                "image_height): tracks undistorted, intrinsics known");
+  a->add_option("--principal-point", e->principal_point, "a known principal point X,Y (px), held")
+      ->delimiter(',')
+      ->expected(2);
   a->add_option("--refine", e->refine,
                 "plane models: final | none (final: a bundle adjustment of every frame after the filter, docs/estimate.md)")
       ->capture_default_str();
@@ -161,6 +170,20 @@ std::string finishEstimateOptions(EstimateCli* e) {
       e->est.finder.rois.push_back(p);
     }
   }
+  if (!e->camera_file.empty()) {
+    if (f.focal_px > 0) return "--camera and --focal-px exclude each other (the file gives the focal length)";
+    if (!e->principal_point.empty()) return "--camera and --principal-point exclude each other (the file gives it)";
+    try {
+      e->est.camera = vision::readCameraFile(e->camera_file);
+    } catch (const std::exception& ex) {
+      return ex.what();
+    }
+  }
+  if (!e->principal_point.empty()) {
+    if (!std::isfinite(e->principal_point[0]) || !std::isfinite(e->principal_point[1]))
+      return "--principal-point must be two finite numbers X,Y";
+    e->est.principal_point = Eigen::Vector2d(e->principal_point[0], e->principal_point[1]);
+  }
   if (e->refine == "final") e->est.refine.enabled = true;
   else if (e->refine == "none") e->est.refine.enabled = false;
   else return "--refine must be final or none, got '" + e->refine + "'";
@@ -178,6 +201,40 @@ std::string finishEstimateOptions(EstimateCli* e) {
 
 double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
 
+/// camera.yaml: the camera the run ended with (OpenCV FileStorage YAML, docs/outputs.md): the
+/// given calibration, or the refinement's estimate with its sds and what is determined. Empty
+/// when there is neither (no refinement).
+std::string cameraYamlOf(const EstimateResult& r, const EstimateOptions& o, const ImageInfo& image) {
+  if (o.camera) {
+    const vision::CameraCalibration& c = *o.camera;
+    std::vector<std::string> extra{fmt::format("source: \"{} (given)\"", c.source)};
+    if (c.distortion.size() > 2) {
+      std::string all;
+      for (double d : c.distortion) all += fmt::format("{}{:.17g}", all.empty() ? "" : ", ", d);
+      extra.push_back("# the given distortion (OpenCV's order k1, k2, p1, p2, k3, ...): " + all);
+    }
+    return io::cameraYaml(c.width, c.height, c.focal(), c.cx, c.cy, c.distortion.size() > 0 ? c.distortion[0] : 0.0,
+                              c.distortion.size() > 1 ? c.distortion[1] : 0.0, extra);
+  }
+  if (!r.refined.ok) return {};
+  const RefineResult& f = r.refined;
+  const double s = f.state.scale_px, beta = f.state.frames.back().beta;
+  auto sd = [&](int c) { return std::sqrt(std::max(0.0, f.cov_camera(c, c))); };
+  const double focal_sd = s * std::sqrt(std::max(0.0, f.state.frames.back().var_beta)) / (beta * beta);
+  std::vector<std::string> extra{
+      "source: \"estimated by rsfm's refinement (docs/estimate.md)\"",
+      fmt::format("focal_determined: {}", f.focal_determined ? 1 : 0),
+      fmt::format("focal_sd_px: {:.6g}", focal_sd),
+      fmt::format("principal_point_estimated: {}", f.camera_free[0] ? 1 : 0),
+      fmt::format("principal_point_determined: {}", f.camera_determined[0] && f.camera_determined[1] ? 1 : 0),
+      fmt::format("principal_point_sd_px: [ {:.6g}, {:.6g} ]", s * sd(0), s * sd(1)),
+      fmt::format("distortion_estimated: {}", f.camera_free[2] ? 1 : 0),
+      fmt::format("distortion_determined: {}", f.camera_determined[2] && f.camera_determined[3] ? 1 : 0),
+      fmt::format("distortion_sd: [ {:.6g}, {:.6g} ]", sd(2), sd(3))};
+  return io::cameraYaml(image.width, image.height, s / beta, f.principal_point_px.x(), f.principal_point_px.y(),
+                            f.camera[2], f.camera[3], extra);
+}
+
 std::function<void(const std::string&)> noteTo(bool quiet) {
   if (quiet) return {};
   return [](const std::string& m) { fmt::print(stderr, "{}\n", m); };
@@ -191,6 +248,8 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
     r = estimate(tracks, e.est, noteTo(e.quiet),
                  e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
   } catch (const std::invalid_argument& ex) {
+    return fail(kBadInput, ex.what());
+  } catch (const io::InputError& ex) {
     return fail(kBadInput, ex.what());
   } catch (const std::exception& ex) {
     return fail(kRuntimeFailure, ex.what());
@@ -218,6 +277,8 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
         rep.seconds = now() - t_start;
         summary = io::writeEstimateReport(rep, e.out, &files, e.plots);
         if (write_tracks) files.write(std::filesystem::path(e.out) / "tracks.csv", io::tracksToString(tracks));
+        if (const std::string yaml = cameraYamlOf(r, e.est, tracks.image); !yaml.empty())
+          files.write(std::filesystem::path(e.out) / "camera.yaml", yaml);
         if (!overlay_input.empty())
           vision::writeOverlay(overlay_input, range, tracks, r.labels(), r.main(),
                                files.temp(std::filesystem::path(e.out) / "overlay.mp4"));

@@ -143,6 +143,29 @@ if "$RSFM" bench regimes --out "$BG" --suite "$TMP/suite-small.json" --cache "$T
 else
   fail=$((fail + 1)); echo "FAIL bench good run: $(cat "$TMP/err.txt"); $(ls -R "$BG" 2>&1 | tr '\n' ' ')"
 fi
+# Camera files and the refinement's options (issue 13; docs/estimate.md).
+CT="$TMP/cam-tracks.csv"
+printf '# rsfm-tracks 1\n# image_size 640 480\n# frames 0 2\nframe,track,x,y\n0,0,10,10\n1,0,11,10\n2,0,12,10\n' >"$CT"
+E="$TMP/est"
+check "estimate: unknown --refine" 2 "$E" -- estimate --tracks "$CT" --out "$E" --refine later
+check "estimate: missing camera file" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/none.yaml"
+printf 'not: [a yaml camera\n' >"$TMP/bad.yaml"
+check "estimate: malformed camera file" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/bad.yaml"
+printf '%%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\n' >"$TMP/nok.yaml"
+check "estimate: camera file without camera_matrix" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/nok.yaml"
+cam() {  # cam FILE W H FX FY CX CY
+  printf '%%YAML:1.0\n---\nimage_width: %s\nimage_height: %s\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ %s, 0., %s, 0., %s, %s, 0., 0., 1. ]\ndistortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ -0.1, 0.01, 0., 0., 0. ]\n' "$2" "$3" "$4" "$6" "$5" "$7" >"$1"
+}
+cam "$TMP/size.yaml" 800 600 500 500 399.5 299.5
+check "estimate: camera for another image size" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/size.yaml"
+cam "$TMP/fxfy.yaml" 640 480 500 560 319.5 239.5
+check "estimate: non-square pixels" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/fxfy.yaml"
+cam "$TMP/ppout.yaml" 640 480 500 500 700 239.5
+check "estimate: camera principal point outside the image" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/ppout.yaml"
+cam "$TMP/good.yaml" 640 480 500 500 319.5 239.5
+check "estimate: camera with --focal-px" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/good.yaml" --focal-px 500
+check "estimate: principal point outside the image" 2 "$E" -- estimate --tracks "$CT" --out "$E" --principal-point 900,10
+check "estimate: principal point not a pair" 2 "$E" -- estimate --tracks "$CT" --out "$E" --principal-point 300
 check "render: suite not JSON" 2 "$R" -- render regime a --out "$R" --suite "$TMP/suite4.json"
 if "$RSFM" render box --out "$R" --frames 4 --width 160 --height 120 --focal-px 130 --quiet 2>"$TMP/err.txt" &&
    [ -s "$R/video.mp4" ] && [ "$(grep -vc '^#' "$R/truth/trajectory.tum")" -eq 4 ] &&

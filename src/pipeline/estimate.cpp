@@ -10,23 +10,58 @@ const char* const kFocalGridEndWarning =
     "the start's focal length is at the end of its grid (0.3-3 x max(width, height)): the homographies do not "
     "determine it; consider --focal-px or --focal0-px";
 
-EstimateResult estimate(const Tracks& tracks, const EstimateOptions& o,
+EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
                         const std::function<void(const std::string&)>& note,
                         const std::function<void(int, int)>& progress) {
   auto say = [&](const std::string& m) {
     if (note) note(m);
   };
   EstimateResult r;
+  // A known camera: the tracks onto its ideal pinhole, its intrinsics known.
+  EstimateOptions known = o;
+  Tracks undistorted;
+  const Tracks* t = &input;
+  if (o.camera) {
+    if (o.filter.focal_px > 0) throw std::invalid_argument("a calibrated camera and a known focal length exclude each other");
+    undistorted = vision::undistortTracks(input, *o.camera);
+    t = &undistorted;
+    known.filter.focal_px = o.camera->focal();
+    known.refine.estimate_principal_point = false;
+    known.refine.estimate_distortion = false;
+    say(fmt::format("camera: {} ({}x{}, f {:.1f} px, principal point ({:.1f}, {:.1f}){})", o.camera->source, o.camera->width,
+                    o.camera->height, o.camera->focal(), o.camera->cx, o.camera->cy,
+                    o.camera->distorted() ? ", tracks undistorted" : ""));
+  }
+  if (o.principal_point) {
+    const Eigen::Vector2d& pp = *o.principal_point;
+    if (!(pp.x() >= 0 && pp.x() <= input.image.width - 1 && pp.y() >= 0 && pp.y() <= input.image.height - 1))
+      throw std::invalid_argument(fmt::format("--principal-point ({}, {}) is outside the {}x{} image", pp.x(), pp.y(),
+                                              input.image.width, input.image.height));
+    if (t != &undistorted) {
+      undistorted = input;
+      t = &undistorted;
+    }
+    undistorted.image.cx = o.principal_point->x();
+    undistorted.image.cy = o.principal_point->y();
+    known.refine.estimate_principal_point = false;
+  }
+  const Tracks& tracks = *t;
+  r.image = tracks.image;
   {
     vision::PlaneFinderOptions fo = o.finder;
     if (o.filter.model == TrackModel::Plane && fo.rois.empty()) fo.max_planes = 1;  // the dominant plane only
     r.planes = vision::findPlanes(tracks, fo);
   }
   const vision::PlaneFinding& pf = r.planes;
-  if (pf.numPlanes() == 0)
-    throw NoPlaneFound(fmt::format("no plane with at least {} tracks found in the reference frame (tracks: {}; "
+  if (pf.numPlanes() == 0) {
+    std::string cands;
+    for (const auto& c : pf.candidates)
+      cands += fmt::format("{}{} {} tracks", cands.empty() ? "" : ", ", vision::toString(c.verdict), c.members.size());
+    throw NoPlaneFound(fmt::format("no plane with at least {} tracks found in the reference frame (tracks: {}; candidates: {}; "
                                    "try --min-plane-tracks, --ransac-px or --plane-roi)",
-                                   o.finder.min_plane_tracks, tracks.frames.empty() ? 0 : tracks.frames[0].size()));
+                                   o.finder.min_plane_tracks, tracks.frames.empty() ? 0 : tracks.frames[0].size(),
+                                   cands.empty() ? "none" : cands));
+  }
   {
     std::string line = fmt::format("planes: {} accepted (pair frame {}):", pf.numPlanes(), tracks.first_frame + pf.pair_frame);
     for (const auto& c : pf.candidates)
@@ -35,7 +70,7 @@ EstimateResult estimate(const Tracks& tracks, const EstimateOptions& o,
                           c.same_motion_fraction >= 0 ? fmt::format(", same-motion {:.2f}", c.same_motion_fraction) : "");
     say(line + fmt::format("; outliers {}", pf.count(-1)));
   }
-  TrackFilterOptions fopt = o.filter;
+  TrackFilterOptions fopt = known.filter;
   if (o.homography_start && fopt.model != TrackModel::Point) {
     r.start_tried = true;
     r.start = vision::planeStart(tracks, pf, fopt.focal_px);
@@ -59,7 +94,7 @@ EstimateResult estimate(const Tracks& tracks, const EstimateOptions& o,
   r.filter_used = fopt;
   r.online = runTrackFilter(tracks, pf.labels, fopt, progress);
   if (o.refine.enabled && r.online.ok() && fopt.model != TrackModel::Point) {
-    r.refined = refine(tracks, pf.labels, r.online, fopt, o.refine);
+    r.refined = refine(tracks, pf.labels, r.online, fopt, known.refine);
     if (r.refined.ok) {
       say(fmt::format("refine: focal {:.1f} px, {} in {:.2f} s", r.refined.state.scale_px / r.refined.state.frames.back().beta,
                       r.refined.message, r.refined.seconds));

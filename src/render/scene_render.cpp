@@ -18,6 +18,7 @@
 #include <stdexcept>
 
 #include "rsfm/io/atomic_file.hpp"
+#include "rsfm/io/camera_yaml.hpp"
 #include "rsfm/models/radial_camera.hpp"
 #include "rsfm/render/determinacy.hpp"
 
@@ -1241,6 +1242,9 @@ RenderResult writeSequence(const RenderOptions& o, const fs::path& out_dir, cons
   files->write(truth_dir / "trajectory.tum", tum.str());
   files->write(truth_dir / "summary.json", io::summaryToJson(truth));
   files->write(truth_dir / "render.json", rj.dump(2) + "\n");
+  files->write(truth_dir / "camera.yaml",
+               io::cameraYaml(o.width, o.height, o.focal_px, truth.principal_point_px.x(), truth.principal_point_px.y(), o.k1,
+                              o.k2, {"source: \"rsfm render (the truth)\""}));
   files->commit();
   cleanup.active = false;
   res.video = video_final;

@@ -10,6 +10,7 @@
 //                     filter (pipeline/patch_pipeline.hpp).
 // Uses OpenCV through the vision front end: lives in rsfm_pipeline, not in rsfm_core.
 #include <functional>
+#include <optional>
 #include <stdexcept>
 #include <string>
 
@@ -18,6 +19,7 @@
 #include "rsfm/pipeline/track_filter.hpp"
 #include "rsfm/track/patches.hpp"
 #include "rsfm/track/tracks.hpp"
+#include "rsfm/vision/camera_file.hpp"
 #include "rsfm/vision/plane_finder.hpp"
 #include "rsfm/vision/plane_init.hpp"
 
@@ -36,13 +38,20 @@ struct EstimateOptions {
   bool homography_start = true;
   /// The final refinement (pipeline/refine.hpp; plane models only): on by default.
   RefineOptions refine;
+  /// A calibrated camera (vision/camera_file.hpp): the tracks are undistorted with it before
+  /// anything else, its focal length is known (filter.focal_px must then be 0) and its principal
+  /// point and distortion are held in the refinement.
+  std::optional<vision::CameraCalibration> camera;
+  /// A known principal point (px): the tracks' image's is replaced by it and held.
+  std::optional<Eigen::Vector2d> principal_point;
 };
 
 struct EstimateResult {
   vision::PlaneFinding planes;      ///< label per track, every candidate plane, the pair frame
   vision::PlaneStart start;         ///< the homography start (ok = false: not tried, or refused: note says why)
   bool start_tried = false;
-  TrackFilterOptions filter_used;   ///< the filter's options after the start
+  TrackFilterOptions filter_used;   ///< the filter's options after the start (and a known camera)
+  ImageInfo image;                  ///< the image geometry used (a known principal point)
   TrackFilterResult online;         ///< the recursive filter's per-frame estimates (online.ok(): every frame)
   RefineResult refined;             ///< the refinement (refined.ok: the main result; else the online one stands)
   /// The main result: the refinement's when it succeeded, else the filter's.

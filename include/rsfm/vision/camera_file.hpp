@@ -1,0 +1,38 @@
+#pragma once
+// Camera calibration files (docs/estimate.md, "A known camera"; docs/outputs.md, camera.yaml):
+// OpenCV FileStorage YAML or XML as cv::calibrateCamera tools write them, with `camera_matrix`
+// (3x3), `distortion_coefficients` (1x4, 1x5, 1x8, 1x12 or 1x14: k1, k2, p1, p2[, k3, ...]) and
+// `image_width`, `image_height`. rsfm's model has square pixels: fx and fy must agree within 1 %
+// (their mean is used). Tracks from a calibrated camera are undistorted with the whole model
+// (cv::undistortPoints) onto the ideal pinhole with that focal length and principal point.
+#include <Eigen/Core>
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "rsfm/io/camera_yaml.hpp"
+#include "rsfm/track/tracks.hpp"
+
+namespace rsfm::vision {
+
+struct CameraCalibration {
+  int width = 0, height = 0;
+  double fx = 0, fy = 0, cx = 0, cy = 0;
+  std::vector<double> distortion;  ///< OpenCV's order: k1, k2, p1, p2[, k3, k4, k5, k6, ...]; may be empty
+  std::string source;              ///< the file it came from
+  double focal() const { return 0.5 * (fx + fy); }
+  bool distorted() const;
+};
+
+/// Reads and checks a calibration file. Throws io::InputError "FILE: problem" (unreadable, not
+/// OpenCV FileStorage, a missing or malformed node, non-positive or non-square focal lengths, a
+/// principal point outside the image).
+CameraCalibration readCameraFile(const std::filesystem::path& file);
+
+/// The tracks undistorted onto the ideal pinhole (focal(), cx, cy) of `cal`; throws
+/// io::InputError naming the file when the tracks' image size differs from the calibration's.
+Tracks undistortTracks(const Tracks& tracks, const CameraCalibration& cal);
+
+
+}  // namespace rsfm::vision
