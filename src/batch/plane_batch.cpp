@@ -428,6 +428,7 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   for (int k = 1; k <= F; ++k) {
     problem.AddParameterBlock(motion[k].data(), 6);
     if (options.rotation_only) problem.SetManifold(motion[k].data(), new ceres::SubsetManifold(6, {0, 1, 2}));
+    if (options.translation_only) problem.SetManifold(motion[k].data(), new ceres::SubsetManifold(6, {3, 4, 5}));
   }
   problem.AddParameterBlock(&beta, 1);
   if (options.hold_beta) problem.SetParameterBlockConstant(&beta);

@@ -197,6 +197,7 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                          {"relabelled_outliers", rf.relabelled},
                          {"null_space_dim", rf.null_dim},
                          {"rotation_likelihood_ratio", rf.rotation_lr},
+                         {"translation_likelihood_ratio", rf.translation_lr},
                          {"translation_significant", rf.translation_significant},
                          {"undetermined_frames", rf.undetermined_frames},
                          {"iterations", rf.iterations},

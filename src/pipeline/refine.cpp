@@ -289,7 +289,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     double c0 = 0;
     for (double x : all) c0 += x * x;
     double sum_rho = 0;
-    for (int lag = 1; lag <= 50 && c0 > 0; ++lag) {
+    for (int lag = 1; lag <= 1000 && c0 > 0; ++lag) {
       double c = 0;
       for (const auto& v : per)  // v = (x0, y0, x1, y1, ...)
         for (std::size_t i = 0; i + 2 * lag + 1 < v.size(); i += 2)
@@ -319,18 +319,10 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   const double beta = st.beta, f = s / beta;
   const double focal_sd = known_focal ? 0.0 : b.beta_estimable ? s * std::sqrt(std::max(0.0, b.var_beta)) / (beta * beta) : INFINITY;
   r.focal_determined = known_focal || (b.beta_estimable && focal_sd / f <= kDeterminedFocalRelSd);
-  if (!r.focal_determined) {
-    const double lo = 0.3 * fmax, hi = 3.0 * fmax;  // the range a camera's focal length can have (the start's grid)
-    // The 95 % interval of beta (in which the model is nearly linear: seed eq. 7) mapped to
-    // f = s / beta, within the range a focal length can have.
-    const double sb = std::sqrt(std::max(0.0, b.var_beta));
-    const double blo = beta - 1.96 * sb, bhi = beta + 1.96 * sb;
-    r.focal_interval_px = b.beta_estimable ? std::array<double, 2>{std::max(lo, s / bhi), blo > 0 ? std::min(hi, s / blo) : hi}
-                                           : std::array<double, 2>{lo, hi};
+  if (!r.focal_determined)
     why.push_back(b.beta_estimable ? fmt::format("focal length sd {:.1f} % (limit {:.0f} %)", 100 * focal_sd / f,
                                                  100 * kDeterminedFocalRelSd)
                                    : "the focal length is in the null space (e.g. translation only: the affine ambiguity)");
-  }
   // Is there a translation at all? Without one (a camera turning about its centre of projection)
   // the planes are not determined whatever their bound says: an optimum that fitted a translation
   // to the noise sees structure in it. Likelihood ratio against the degenerate model (every frame
@@ -367,13 +359,48 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
                                 "which shows no structure",
                                 r.rotation_lr, dof));
   }
+  // Is there a rotation at all? Without one (a camera that only translates) the focal length and
+  // the planes' tilt are one null direction (the affine ambiguity): any focal length fits. The
+  // same likelihood ratio test against a translation-only fit (every frame's rotation held at
+  // the identity), on 3 dof per frame at 0.1 %.
+  bool rotates = true;
+  if (!known_focal) {
+    PlaneBatchOptions to = bo;
+    to.translation_only = true;
+    to.max_iterations = 15;
+    p.start = st;
+    for (auto& R : p.start.R) R.setIdentity();
+    const PlaneBatchResult tr = solvePlaneBatch(p.data, p.start, to);
+    double ss_tr = 0;
+    for (double x : pooled(residualsPx(p, tr.state, s, true))) ss_tr += x * x;
+    r.translation_lr = tr.converged ? (ss_tr - ss) / (r.sigma_px * r.sigma_px * r.correlation_inflation) : INFINITY;
+    rotates = r.translation_lr > chi2Quantile(0.999, 3.0 * (F - 1));
+    if (!rotates) {
+      r.focal_determined = false;
+      why.push_back(fmt::format("the camera only translates: no rotation is needed (likelihood ratio {:.0f} on {} dof), so "
+                                "the focal length and the planes' tilt are not determined (the affine ambiguity)",
+                                r.translation_lr, 3 * (F - 1)));
+    }
+  }
+  if (!r.focal_determined && !known_focal) {
+    // The interval the data support: the 95 % interval of beta (in which the model is nearly
+    // linear: seed eq. 7) mapped to f = s / beta, within the range a camera's focal length can
+    // have (0.3-3 x the larger image side); the whole range when nothing rotates or beta is in
+    // the null space.
+    const double lo = 0.3 * fmax, hi = 3.0 * fmax;
+    const double sb = std::sqrt(std::max(0.0, b.var_beta));
+    const double blo = beta - 1.96 * sb, bhi = beta + 1.96 * sb;
+    r.focal_interval_px = rotates && b.beta_estimable
+                              ? std::array<double, 2>{std::max(lo, s / bhi), blo > 0 ? std::min(hi, s / blo) : hi}
+                              : std::array<double, 2>{lo, hi};
+  }
   for (int j = 0; j < m; ++j) {
     const Eigen::Vector3d N = st.N[j], n = N.normalized();
     const Eigen::Matrix3d J = (Eigen::Matrix3d::Identity() - n * n.transpose()) / N.norm();
     const double sd = std::sqrt(std::max(0.0, (J * b.cov_N[j] * J.transpose()).trace())) * kRadToDeg;
-    const bool det = r.translation_significant && b.normal_estimable[j] && sd <= kDeterminedNormalSdDeg;
+    const bool det = r.translation_significant && rotates && b.normal_estimable[j] && sd <= kDeterminedNormalSdDeg;
     r.plane_determined.push_back(det);
-    if (!det && r.translation_significant)
+    if (!det && r.translation_significant && rotates)
       why.push_back(b.normal_estimable[j] ? fmt::format("plane {} normal sd {:.1f} deg (limit {:.0f} deg)", j, sd, kDeterminedNormalSdDeg)
                                           : fmt::format("plane {} is in the null space (e.g. pure rotation: no parallax)", j));
   }

@@ -187,6 +187,7 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
   }
   row.focal_est = s.contains("focal_px") && s["focal_px"].is_number() ? optNum(s, "focal_px") : optNum(s, "focal_estimate_px");
   row.focal_sd = optNum(s, "focal_sd_px");
+  if (s.contains("radial_distortion") && s["radial_distortion"].is_array()) row.k1_est = s["radial_distortion"][0].get<double>();
   if (s.contains("planes") && s["planes"].is_array()) row.planes_found = static_cast<int>(s["planes"].size());
   {
     std::ifstream in(est_dir / "trajectory.tum");
@@ -478,6 +479,10 @@ BenchResult runBench(const BenchOptions& opt, const std::function<void(const std
         row.frames = 80;
         const fs::path out = runRsfm(row, {kCubePattern}, "visp-cube");
         if (row.exit_code == 0) scoreEstimate(row, out, &ref);
+        try {
+          if (const io::Summary rs = io::readSummary(ref / "summary.json"); rs.distortion) row.k1_true = rs.distortion->x();
+        } catch (const std::exception&) {
+        }
         say(fmt::format("regimes: ViSP cube: exit {} in {:.1f} s{}", row.exit_code, row.seconds,
                         row.focal_err_pct ? fmt::format(", focal {:+.1f} % from COLMAP's", *row.focal_err_pct) : ""));
       }});
@@ -523,8 +528,8 @@ BenchResult runBench(const BenchOptions& opt, const std::function<void(const std
         row.k1_est = optNum(r["colmap"], "k1");
         if (auto s = optNum(r["colmap"]["seconds"], "total")) row.seconds = *s;
       }
-      row.k1_true = t.distortion ? t.distortion->x() : 0.0;
       scoreEstimate(row, entry.path(), &truth);
+      row.k1_true = t.distortion ? t.distortion->x() : 0.0;
       row.undetermined = "";
     } catch (const std::exception& e) {
       row.message = e.what();
@@ -564,6 +569,7 @@ struct Aggregate {
   int cover_pairs = 0, covered = 0;   // (sequence, determinable quantity) pairs; truth inside the 95 % interval
   int focal_pairs = 0, focal_cov = 0, normal_pairs = 0, normal_cov = 0;
   int online_focal_cov = 0, online_normal_cov = 0, reported_undetermined = 0;
+  int planes_true = 0, planes_found = 0;  // truth planes, and those matched by an estimated plane
   std::vector<double> focal_err, normal_err, face_err, ate, online_focal_err, online_normal_err;
   int undet = 0, undet_marked = 0, undet_confident = 0, undet_none = 0;
 };
@@ -582,8 +588,10 @@ Aggregate aggregate(const std::vector<Row>& rows) {
       if (r.online_focal_err_pct) a.online_focal_err.push_back(std::abs(*r.online_focal_err_pct));
     }
     a.reported_undetermined += r.reported_undetermined;
+    a.planes_true += r.planes_true;
+    a.planes_found += r.planes_matched;
     if (r.structure_determinable) {
-      a.normal_pairs += r.planes_true;
+      a.normal_pairs += r.planes_matched;
       a.normal_cov += r.normals_in_95;
       a.online_normal_cov += r.online_normals_in_95;
       if (r.worst_normal_err_deg) a.normal_err.push_back(*r.worst_normal_err_deg);
@@ -668,6 +676,7 @@ std::string scoreboardMarkdown(const BenchResult& res, const std::string& invoca
                    pct(a.online_focal_cov, a.focal_pairs));
   s += fmt::format("| &nbsp; plane normals | {} (filter alone: {}) |\n", pct(a.normal_cov, a.normal_pairs),
                    pct(a.online_normal_cov, a.normal_pairs));
+  s += fmt::format("| truth planes found (matched by an estimated plane) | {} |\n", pct(a.planes_found, a.planes_true));
   s += fmt::format("| determinable quantities reported not determined | {} |\n", a.reported_undetermined);
   s += fmt::format("| focal error, determinable sequences | {} |\n", medw(a.focal_err, " %"));
   s += fmt::format("| &nbsp; the filter alone | {} |\n", medw(a.online_focal_err, " %"));
@@ -773,6 +782,7 @@ std::string scoreboardJson(const BenchResult& res, const std::string& invocation
                     {"online_focal_err_pct", stat(a.online_focal_err)},
                     {"online_worst_normal_err_deg", stat(a.online_normal_err)},
                     {"reported_undetermined", a.reported_undetermined},
+                    {"planes_found", ratio(a.planes_found, a.planes_true)},
                     {"focal_err_pct", stat(a.focal_err)},
                     {"worst_normal_err_deg", stat(a.normal_err)},
                     {"face_angle_err_deg", stat(a.face_err)},

@@ -49,6 +49,9 @@ struct PlaneBatchOptions {
   /// centre of projection (planeBatchRotationResidual); translations and planes are not
   /// parameters (the result keeps them as started).
   bool rotation_only = false;
+  /// The other degenerate alternative: no rotation in any frame (each frame's omega held at zero;
+  /// the caller starts every R at the identity).
+  bool translation_only = false;
   int max_iterations = 200;         ///< Levenberg-Marquardt iterations
   double function_tolerance = 1e-12;
   double parameter_tolerance = 1e-12;

@@ -88,8 +88,12 @@ struct RefineResult {
   /// and no plane is determined.
   double rotation_lr = 0.0;
   bool translation_significant = true;
+  /// The same against a translation-only fit (no rotation in any frame): not significant, and the
+  /// focal length and the planes' tilt are not determined (the affine ambiguity).
+  double translation_lr = 0.0;
   bool focal_determined = false;
-  std::optional<std::array<double, 2>> focal_interval_px;  ///< when not determined: what the data support
+  /// When not determined: what the data support (the focal length's profile, docs/estimate.md).
+  std::optional<std::array<double, 2>> focal_interval_px;
   std::vector<bool> plane_determined;
   std::string why;            ///< one line on what is not determined and why (empty when all is)
   int iterations = 0;
