@@ -198,6 +198,8 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                          {"null_space_dim", rf.null_dim},
                          {"rotation_likelihood_ratio", rf.rotation_lr},
                          {"translation_likelihood_ratio", rf.translation_lr},
+                         {"wald_translation_chi2", rf.wald_translation_chi2},
+                         {"wald_rotation_chi2", rf.wald_rotation_chi2},
                          {"translation_significant", rf.translation_significant},
                          {"undetermined_frames", rf.undetermined_frames},
                          {"iterations", rf.iterations},

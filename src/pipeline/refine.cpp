@@ -12,6 +12,7 @@
 #include "rsfm/rotation.hpp"
 
 #include <Eigen/Cholesky>
+#include <Eigen/Geometry>
 #include "rsfm/determinacy.hpp"
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/models/radial_camera.hpp"
@@ -323,6 +324,39 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     why.push_back(b.beta_estimable ? fmt::format("focal length sd {:.1f} % (limit {:.0f} %)", 100 * focal_sd / f,
                                                  100 * kDeterminedFocalRelSd)
                                    : "the focal length is in the null space (e.g. translation only: the affine ambiguity)");
+  // Wald statistics of each frame's translation (its centre of projection) and rotation against
+  // their covariances: far beyond any test level (chi2 > 1000 on 3 dof), the likelihood ratio
+  // tests below would be too, and their extra solves are skipped.
+  double wald_t = 0, wald_r = 0;
+  for (int k = 1; k < F; ++k) {
+    if (b.cov_motion.size() <= static_cast<std::size_t>(k) || b.cov_motion[k].isZero(0.0)) continue;
+    const Eigen::Vector3d tk(st.t[k].x(), st.t[k].y(), st.t[k].z() / beta);
+    auto centre = [&](const Eigen::Matrix<double, 6, 1>& d) {
+      const Eigen::Matrix3d R = incrementalRotation(d.tail<3>()) * st.R[k];
+      return copCentredPose(R, Eigen::Vector3d(tk.x() + d[0], tk.y() + d[1], tk.z() + d[2] / beta), beta).position;
+    };
+    Eigen::Matrix<double, 3, 6> Jc;
+    for (int c = 0; c < 6; ++c) {
+      Eigen::Matrix<double, 6, 1> d = Eigen::Matrix<double, 6, 1>::Zero();
+      const double h = 1e-7 * std::max(1.0, c < 3 ? std::abs(st.t[k][c]) : 1.0);
+      d[c] = h;
+      const Eigen::Vector3d a = centre(d);
+      d[c] = -h;
+      Jc.col(c) = (a - centre(d)) / (2 * h);
+    }
+    const Eigen::Vector3d ck = centre(Eigen::Matrix<double, 6, 1>::Zero());
+    const Eigen::LDLT<Eigen::Matrix3d> lt(Jc * b.cov_motion[k] * Jc.transpose());
+    if (lt.info() == Eigen::Success && lt.vectorD().minCoeff() > 0) wald_t = std::max(wald_t, ck.dot(lt.solve(ck)));
+    // The rotation from the reference as a rotation vector, against the omega block.
+    const Eigen::AngleAxisd aa(st.R[k]);
+    const Eigen::Vector3d rv = aa.angle() * aa.axis();
+    const Eigen::LDLT<Eigen::Matrix3d> lr(b.cov_motion[k].bottomRightCorner<3, 3>());
+    if (lr.info() == Eigen::Success && lr.vectorD().minCoeff() > 0) wald_r = std::max(wald_r, rv.dot(lr.solve(rv)));
+  }
+  constexpr double kObvious = 1000.0;
+  r.wald_translation_chi2 = wald_t;
+  r.wald_rotation_chi2 = wald_r;
+  r.rotation_lr = r.translation_lr = INFINITY;  // skipped: obviously significant
   // Is there a translation at all? Without one (a camera turning about its centre of projection)
   // the planes are not determined whatever their bound says: an optimum that fitted a translation
   // to the noise sees structure in it. Likelihood ratio against the degenerate model (every frame
@@ -330,7 +364,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   // (inflated for the correlation), against chi2 with the plane model's extra parameters
   // (3 per frame for the translation, 3m - 1 for the planes) at 0.1 %: structure is claimed only
   // on strong evidence.
-  {
+  if (wald_t <= kObvious) {
     PlaneBatchOptions ro_opt = bo;
     ro_opt.rotation_only = true;
     // Started from the plane model's rotations, a pure rotation that fits converges in a few
@@ -364,7 +398,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   // same likelihood ratio test against a translation-only fit (every frame's rotation held at
   // the identity), on 3 dof per frame at 0.1 %.
   bool rotates = true;
-  if (!known_focal) {
+  if (!known_focal && wald_r <= kObvious) {
     PlaneBatchOptions to = bo;
     to.translation_only = true;
     to.max_iterations = 15;

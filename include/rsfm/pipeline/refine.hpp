@@ -91,6 +91,9 @@ struct RefineResult {
   /// The same against a translation-only fit (no rotation in any frame): not significant, and the
   /// focal length and the planes' tilt are not determined (the affine ambiguity).
   double translation_lr = 0.0;
+  /// The largest per-frame Wald chi2 (3 dof) of the translation and of the rotation from the
+  /// reference; above 1000 the likelihood ratio test is skipped (infinite in the fields above).
+  double wald_translation_chi2 = 0.0, wald_rotation_chi2 = 0.0;
   bool focal_determined = false;
   /// When not determined: what the data support (the focal length's profile, docs/estimate.md).
   std::optional<std::array<double, 2>> focal_interval_px;
