@@ -184,7 +184,8 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                      {"k2", rf.camera[3]},
                      {"k_sd", {sd(2), sd(3)}},
                      {"distortion_estimated", rf.camera_free[2]},
-                     {"distortion_determined", rf.camera_determined[2] && rf.camera_determined[3]}};
+                     {"distortion_determined", rf.camera_determined[2] && rf.camera_determined[3]},
+                     {"k_determined", {rf.camera_determined[2], rf.camera_determined[3]}}};
       j["principal_point_px"] = {rf.principal_point_px.x(), rf.principal_point_px.y()};
       j["radial_distortion"] = {rf.camera[2], rf.camera[3]};
       j["refinement"] = {{"ok", true},

@@ -30,6 +30,7 @@ struct Problem {
   PlaneBatchData data;
   PlaneBatchState start;
   std::vector<int> track_of_point;
+  int unpredictable = 0;  ///< observations left out: the start cannot predict them
 };
 
 double robustSd(std::vector<double> v) {
@@ -124,7 +125,18 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     for (int k = 0; k < F; ++k)
       for (const TrackPoint& tp : tracks.frames[k]) {
         if (tp.id >= static_cast<int>(point_of_track.size()) || point_of_track[tp.id] < 0) continue;
-        p.data.frames[k].push_back({point_of_track[tp.id], Eigen::Vector2d((tp.px.x() - cx) / s, (tp.px.y() - cy) / s)});
+        const int i = point_of_track[tp.id];
+        const Eigen::Vector2d uv((tp.px.x() - cx) / s, (tp.px.y() - cy) / s);
+        // An observation the start cannot predict (behind a camera, at a plane's horizon: a poor
+        // online estimate) is left out; Ceres cannot start from a point it cannot evaluate.
+        Eigen::Vector2d res;
+        if (k > 0 && planeBatchResidual(p.start.t[k], Eigen::Vector3d::Zero(), p.start.R[k], p.start.beta,
+                                        p.start.N[p.data.labels[i]], p.start.ref[i], uv, 1.0, &res, nullptr, nullptr, nullptr,
+                                        nullptr, &p.start.camera, nullptr) != MeasureStatus::Ok) {
+          ++p.unpredictable;
+          continue;
+        }
+        p.data.frames[k].push_back({i, uv});
       }
     return p;
   };
@@ -179,6 +191,16 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     r.message = "fewer than 5 tracks on planes to refine";
     return r;
   }
+  {
+    long total = p.unpredictable;
+    for (const auto& f : p.data.frames) total += static_cast<long>(f.size());
+    if (p.unpredictable > 0.2 * total) {
+      r.message = fmt::format("the online estimate cannot predict {} of {} observations (behind a camera or at a plane's "
+                              "horizon): no start to refine from",
+                              p.unpredictable, total);
+      return r;
+    }
+  }
   const std::vector<double> start_res = pooled(residualsPx(p, p.start, s, false));
   const double sigma0 = std::max(1e-3, robustSd(start_res));
   {
@@ -229,7 +251,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       const Eigen::Vector2d c(cx + s * rc.state.camera[0], cy + s * rc.state.camera[1]);
       for (double x : {-0.5, tracks.image.width - 0.5})
         for (double y : {-0.5, tracks.image.height - 0.5}) rcorner = std::max(rcorner, std::hypot(x - c.x(), y - c.y()) / f1);
-      if (std::abs(k1) > 1 || std::abs(k2) > 1 || rcorner > 0.95 * RadialCamera::monotonicRadius(k1, k2)) {
+      if (std::abs(k1) > 1 || std::abs(k2) > 1 || rcorner >= RadialCamera::monotonicRadius(k1, k2)) {
         why.push_back(fmt::format("distortion not determined: k1 {:.3f}, k2 {:.3f} would fold the image; held at 0", k1, k2));
         r.camera_free[2] = r.camera_free[3] = false;
         held = true;
@@ -447,9 +469,10 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   if (r.camera_free[0] && !(r.camera_determined[0] && r.camera_determined[1]))
     why.push_back(fmt::format("principal point not determined (sd {:.1f}, {:.1f} px)", s * std::sqrt(std::max(0.0, b.cov_camera(0, 0))),
                               s * std::sqrt(std::max(0.0, b.cov_camera(1, 1)))));
-  if (r.camera_free[2] && !(r.camera_determined[2] && r.camera_determined[3]))
-    why.push_back(fmt::format("distortion not determined (sd k1 {:.3f}, k2 {:.3f})", std::sqrt(std::max(0.0, b.cov_camera(2, 2))),
-                              std::sqrt(std::max(0.0, b.cov_camera(3, 3)))));
+  for (int c = 2; c < 4; ++c)
+    if (r.camera_free[c] && !r.camera_determined[c])
+      why.push_back(fmt::format("k{} not determined (sd {:.3f}, limit {})", c - 1, std::sqrt(std::max(0.0, b.cov_camera(c, c))),
+                                kDeterminedDistortionSd));
   for (std::size_t i = 0; i < why.size(); ++i) r.why += (i ? "; " : "") + why[i];
   r.camera = st.camera;
   r.cov_camera = b.cov_camera;

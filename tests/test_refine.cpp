@@ -1,0 +1,238 @@
+// The final refinement (pipeline/refine.hpp) on synthetic tracks of the cube scene
+// (sim/box_scene.hpp, three faces): it recovers a distorted camera with an off-centre principal
+// point; a known camera gives the undistorted run's figures; its focal-length interval holds the
+// truth at the stated rate; pure rotation and pure translation are reported not determined.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <opencv2/core.hpp>
+#include <random>
+
+#include "rsfm/models/radial_camera.hpp"
+#include "rsfm/pipeline/estimate.hpp"
+#include "rsfm/render/scene_render.hpp"
+#include "rsfm/sim/box_scene.hpp"
+
+namespace rsfm {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / M_PI;
+
+struct Synthetic {
+  BoxScene scene;
+  Tracks tracks;
+  double focal = 0;
+};
+
+/// The cube scene's tracks in pixels through a camera with principal point c = image centre +
+/// `pp_offset`, radial distortion (k1, k2) and Gaussian noise.
+Synthetic makeTracks(unsigned seed, double noise_px, const Eigen::Vector2d& pp_offset, double k1, double k2,
+                     int frames = 80, double deg_per_frame = 0.3) {
+  Synthetic s;
+  BoxSceneOptions bo;
+  bo.frames = frames;
+  bo.pitch_deg = 25.0;
+  bo.deg_per_frame = deg_per_frame;
+  bo.scale_px = 512.0;  // f = 512 px on a 512 px image (53 deg)
+  std::mt19937_64 rng(seed);
+  s.scene = makeBoxScene(bo, rng);
+  s.focal = bo.scale_px / bo.beta;
+  const double c0 = (bo.image_px - 1) / 2.0;
+  const Eigen::Vector2d c = Eigen::Vector2d(c0, c0) + pp_offset;
+  s.tracks.image = ImageInfo::centred(static_cast<int>(bo.image_px), static_cast<int>(bo.image_px));
+  s.tracks.frames.resize(bo.frames + 1);
+  std::normal_distribution<double> g(0.0, noise_px);
+  const Eigen::Vector4d cam(0, 0, k1, k2);
+  for (int k = 0; k <= bo.frames; ++k)
+    for (int i = 0; i < static_cast<int>(s.scene.points.size()); ++i) {
+      // A&P h in units of s; pixels f D(beta h) + c = s RadialCamera(h) + c (dc = 0).
+      const Eigen::Vector2d u = RadialCamera::apply(cam, bo.beta, s.scene.uv[k][i]);
+      s.tracks.frames[k].push_back({i, u * bo.scale_px + c + Eigen::Vector2d(g(rng), g(rng))});
+    }
+  return s;
+}
+
+/// Tracks of a rendered regime's geometry without rendering images: a grid of points on its
+/// textured faces, followed while the truth's labels show them, projected by the truth camera
+/// (distortion and principal point included), with Gaussian noise.
+struct RegimeTracks {
+  Tracks tracks;
+  io::Summary truth;
+};
+RegimeTracks regimeTracks(const render::RenderOptions& o, double noise_px, unsigned seed) {
+  render::Scene scene(o);
+  RegimeTracks out;
+  out.truth = scene.truth();
+  Tracks& t = out.tracks;
+  t.image = ImageInfo::centred(o.width, o.height);  // the principal point is not given
+  t.frames.resize(o.frames);
+  std::vector<cv::Mat> labels;
+  for (int k = 0; k < o.frames; ++k) labels.push_back(scene.labels(k));
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> g(0.0, noise_px);
+  int id = 0;
+  for (const auto& f : scene.faces()) {
+    if (f.still_body || !f.textured || f.truth_index < 0) continue;
+    for (int i = 0; i < 12; ++i)
+      for (int j = 0; j < 12; ++j) {
+        const Eigen::Vector3d X = f.corners[0] + (i + 0.5) / 12 * (f.corners[1] - f.corners[0]) + (j + 0.5) / 12 * (f.corners[3] - f.corners[0]);
+        bool alive = true, any = false;
+        for (int k = 0; k < o.frames && alive; ++k) {
+          const auto x = scene.project(X, k);
+          alive = x && x->x() > 5 && x->y() > 5 && x->x() < o.width - 6 && x->y() < o.height - 6 &&
+                  labels[k].at<uchar>(static_cast<int>(std::lround(x->y())), static_cast<int>(std::lround(x->x()))) ==
+                      f.truth_index + 1;
+          if (alive) {
+            t.frames[k].push_back({id, *x + Eigen::Vector2d(g(rng), g(rng))});
+            any = true;
+          }
+        }
+        if (any) ++id;
+      }
+  }
+  for (auto& fr : t.frames) std::sort(fr.begin(), fr.end(), [](const TrackPoint& a, const TrackPoint& b) { return a.id < b.id; });
+  return out;
+}
+
+double worstNormalDeg(const io::Summary& truth, const TrackFilterResult& r) {
+  double worst = 0;
+  for (const auto& N : r.frames.back().N) {
+    double best = 180;
+    for (const auto& n : truth.planes) best = std::min(best, std::acos(std::min(1.0, std::abs(n.dot(N.normalized())))) * kRadToDeg);
+    worst = std::max(worst, best);
+  }
+  return worst;
+}
+
+TEST(Refine, RecoversADistortedCameraWithAnOffCentrePrincipalPoint) {
+  // The geometry of the regime box-k1-neg (k1 = -0.25, f = 700 px, principal point (20, 12) px
+  // off the centre), 60 frames, 0.3 px tracks.
+  render::RenderOptions ro = render::RenderOptions{};
+  ro.frames = 60;
+  ro.focal_px = 700;
+  ro.k1 = -0.25;
+  ro.principal_offset_px = Eigen::Vector2d(20, 12);
+  ro.seed = 15;
+  const RegimeTracks s = regimeTracks(ro, 0.3, 5);
+  const Eigen::Vector2d pp = s.truth.principal_point_px;
+  const EstimateResult r = estimate(s.tracks, EstimateOptions{});
+  ASSERT_TRUE(r.refined.ok) << r.refined.message;
+  const RefineResult& f = r.refined;
+  const double focal = f.state.scale_px / f.state.frames.back().beta;
+  std::printf("refined: focal %.2f (truth 700), pp (%.2f, %.2f) (truth (%.1f, %.1f)), k1 %.4f, k2 %.4f; online focal %.2f; %s\n",
+              focal, f.principal_point_px.x(), f.principal_point_px.y(), pp.x(), pp.y(), f.camera[2], f.camera[3],
+              r.online.scale_px / r.online.frames.back().beta, f.why.c_str());
+  EXPECT_TRUE(f.focal_determined);
+  EXPECT_NEAR(focal / 700.0, 1.0, 0.01);
+  EXPECT_NEAR(f.principal_point_px.x(), pp.x(), 2.0);
+  EXPECT_NEAR(f.principal_point_px.y(), pp.y(), 2.0);
+  EXPECT_NEAR(f.camera[2], -0.25, 0.02);
+  const double n_free = worstNormalDeg(s.truth, f.state);
+  EXPECT_LT(n_free, 0.5);
+  // The filter alone, without a camera model, is off on the same tracks.
+  EXPECT_GT(std::abs(r.online.scale_px / r.online.frames.back().beta / 700.0 - 1.0), 0.01);
+
+  // Given the true camera, the tracks give the figures of an undistorted camera's tracks.
+  EstimateOptions known;
+  vision::CameraCalibration cal;
+  cal.width = ro.width;
+  cal.height = ro.height;
+  cal.fx = cal.fy = 700;
+  cal.cx = pp.x();
+  cal.cy = pp.y();
+  cal.distortion = {-0.25, 0.0, 0.0, 0.0, 0.0};
+  cal.source = "truth";
+  known.camera = cal;
+  const EstimateResult rk = estimate(s.tracks, known);
+  ASSERT_TRUE(rk.refined.ok) << rk.refined.message;
+  render::RenderOptions plain_o = ro;
+  plain_o.k1 = 0;
+  const RegimeTracks plain = regimeTracks(plain_o, 0.3, 5);
+  EstimateOptions pk;
+  pk.filter.focal_px = 700;
+  pk.principal_point = pp;
+  pk.refine.estimate_distortion = false;
+  const EstimateResult ru = estimate(plain.tracks, pk);
+  ASSERT_TRUE(ru.refined.ok) << ru.refined.message;
+  const double nk = worstNormalDeg(s.truth, rk.refined.state), nu = worstNormalDeg(plain.truth, ru.refined.state);
+  std::printf("normals: estimated camera %.3f deg; known camera on the distorted tracks %.3f deg, undistorted tracks %.3f deg\n",
+              n_free, nk, nu);
+  EXPECT_LT(nk, 0.5);
+  EXPECT_NEAR(nk, nu, 0.1);
+}
+
+TEST(Refine, FocalIntervalHoldsTheTruth) {
+  // Gaussian noise, independent: the 95 % interval f +- 1.96 sd must hold the truth in most trials
+  // (binomial: >= 16 of 20 at a 95 % rate fails by chance with probability < 2 %).
+  int inside = 0, trials = 20;
+  double z2 = 0;
+  for (int t = 0; t < trials; ++t) {
+    const Synthetic s = makeTracks(100 + t, 0.5, Eigen::Vector2d::Zero(), 0.0, 0.0, 50);
+    EstimateOptions o;
+    o.refine.estimate_principal_point = false;
+    o.refine.estimate_distortion = false;
+    // The refinement's intervals are what is tested: the filter starts from a focal length 20 %
+    // off (the homography start on this 53-deg scene is poor: issue 14).
+    o.homography_start = false;
+    o.filter.focal0_px = 0.8 * s.focal;
+    const EstimateResult r = estimate(s.tracks, o);
+    ASSERT_TRUE(r.refined.ok) << "trial " << t << ": " << r.refined.message;
+    const TrackFrame& last = r.refined.state.frames.back();
+    const double f = r.refined.state.scale_px / last.beta;
+    const double sd = r.refined.state.scale_px * std::sqrt(last.var_beta) / (last.beta * last.beta);
+    const double z = (f - s.focal) / sd;
+    z2 += z * z;
+    inside += std::abs(z) <= 1.96;
+  }
+  std::printf("focal: %d of %d inside the 95 %% interval; mean z^2 %.2f\n", inside, trials, z2 / trials);
+  EXPECT_GE(inside, 16);
+  EXPECT_LT(z2 / trials, 2.5);  // z^2 averages 1 when the sd is right
+}
+
+TEST(Refine, PureRotationDeterminesNoPlane) {
+  // The cube's tracks turned about the centre of projection: every frame is a homography K R K^-1
+  // of the first (the scene's rotations, no translation).
+  Synthetic s = makeTracks(7, 0.0, Eigen::Vector2d::Zero(), 0.0, 0.0, 60);
+  const double c0 = 255.5;
+  const std::vector<TrackPoint> first = s.tracks.frames[0];
+  std::mt19937_64 rng(70);
+  std::normal_distribution<double> g(0.0, 0.3);
+  for (int k = 0; k < static_cast<int>(s.tracks.frames.size()); ++k)
+    for (auto& p : s.tracks.frames[k]) {
+      const Eigen::Vector2d x0 = (first[p.id].px - Eigen::Vector2d(c0, c0)) / s.focal;
+      const Eigen::Vector3d w = s.scene.R[k] * Eigen::Vector3d(x0.x(), x0.y(), 1.0);
+      p.px = Eigen::Vector2d(w.x() / w.z(), w.y() / w.z()) * s.focal + Eigen::Vector2d(c0, c0) + Eigen::Vector2d(g(rng), g(rng));
+    }
+  EstimateOptions o;
+  o.finder.reject_static = false;
+  const EstimateResult r = estimate(s.tracks, o);
+  ASSERT_TRUE(r.refined.ok) << r.refined.message;
+  EXPECT_FALSE(r.refined.translation_significant) << r.refined.why;
+  for (bool d : r.refined.plane_determined) EXPECT_FALSE(d);
+  EXPECT_NE(r.refined.why.find("only turns"), std::string::npos) << r.refined.why;
+}
+
+TEST(Refine, PureTranslationDeterminesNeitherFocalLengthNorTilt) {
+  Synthetic s = makeTracks(9, 0.0, Eigen::Vector2d::Zero(), 0.0, 0.0, 60);
+  // Every frame translated sideways and forward, no rotation: project the scene's 3-D points.
+  const double c0 = 255.5;
+  std::mt19937_64 rng(90);
+  std::normal_distribution<double> g(0.0, 0.3);
+  for (int k = 0; k < static_cast<int>(s.tracks.frames.size()); ++k)
+    for (auto& p : s.tracks.frames[k]) {
+      const Eigen::Vector3d X = s.scene.points[p.id] + Eigen::Vector3d(0, 0, 1.0);  // COP-centred (beta = 1)
+      const Eigen::Vector3d Y = X - Eigen::Vector3d(0.02 * k, 0.005 * k, -0.01 * k);
+      p.px = Eigen::Vector2d(Y.x() / Y.z(), Y.y() / Y.z()) * s.focal + Eigen::Vector2d(c0, c0) + Eigen::Vector2d(g(rng), g(rng));
+    }
+  const EstimateResult r = estimate(s.tracks, EstimateOptions{});
+  ASSERT_TRUE(r.refined.ok) << r.refined.message;
+  EXPECT_FALSE(r.refined.focal_determined);
+  ASSERT_TRUE(r.refined.focal_interval_px.has_value());
+  EXPECT_LE((*r.refined.focal_interval_px)[0], s.focal);
+  EXPECT_GE((*r.refined.focal_interval_px)[1], s.focal);
+  for (bool d : r.refined.plane_determined) EXPECT_FALSE(d);
+  EXPECT_NE(r.refined.why.find("only translates"), std::string::npos) << r.refined.why;
+}
+
+}  // namespace
+}  // namespace rsfm
