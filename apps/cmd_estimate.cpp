@@ -10,8 +10,8 @@
 
 #include "cli_common.hpp"
 #include "rsfm/io/atomic_file.hpp"
-#include "rsfm/io/estimate_report.hpp"
-#include "rsfm/io/patch_report.hpp"
+#include "rsfm/report/estimate_report.hpp"
+#include "rsfm/report/patch_report.hpp"
 #include "rsfm/io/patches_io.hpp"
 #include "rsfm/pipeline/estimate.hpp"
 #include "rsfm/pipeline/patch_pipeline.hpp"
@@ -257,7 +257,7 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
   const TrackFilterResult& res = r.online;
   const vision::PlaneFinding& pf = r.planes;
   if (!res.ok()) return fail(kRuntimeFailure, "the filter stopped at " + res.stopped + " (no outputs written)");
-  io::EstimateReport rep;
+  report::EstimateReport rep;
   rep.tracks = &tracks;
   rep.labels = &r.labels();
   rep.result = &res;
@@ -275,7 +275,7 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
   if (int rc = guarded([&] {
         io::AtomicFileSet files;
         rep.seconds = now() - t_start;
-        summary = io::writeEstimateReport(rep, e.out, &files, e.plots);
+        summary = report::writeEstimateReport(rep, e.out, &files, e.plots);
         if (write_tracks) files.write(std::filesystem::path(e.out) / "tracks.csv", io::tracksToString(tracks));
         if (const std::string yaml = cameraYamlOf(r, e.est, tracks.image); !yaml.empty())
           files.write(std::filesystem::path(e.out) / "camera.yaml", yaml);
@@ -323,7 +323,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
   const PatchRunResult& res = pr.run;
   if (pr.start.ok) start_json = startJson(pr.start);
   if (!res.ok()) return fail(kRuntimeFailure, "the patch filter stopped at " + res.stopped + " (no outputs written)");
-  io::PatchReport rep;
+  report::PatchReport rep;
   rep.tracks = &tracks;
   rep.result = &res;
   rep.command = invocation();
@@ -332,7 +332,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
   if (int rc = guarded([&] {
         io::AtomicFileSet files;
         rep.seconds = now() - t_start;
-        summary = io::writePatchReport(rep, e.out, &files, e.plots);
+        summary = report::writePatchReport(rep, e.out, &files, e.plots);
         if (write_patches) files.write(std::filesystem::path(e.out) / "patches.csv", io::patchesToString(tracks));
         if (!overlay_input.empty())
           vision::writePatchOverlay(overlay_input, range, tracks, res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));

@@ -6,7 +6,7 @@
 
 #include "cli_common.hpp"
 #include "rsfm/io/atomic_file.hpp"
-#include "rsfm/io/evaluation.hpp"
+#include "rsfm/report/evaluation.hpp"
 
 namespace rsfm::cli {
 
@@ -16,7 +16,7 @@ void addEvaluateCommands(CLI::App& app, std::vector<Command>& commands) {
                   "plane normals, focal length)");
   struct EvalCli {
     std::string estimate, truth, out;
-    rsfm::io::EvaluateOptions o;
+    rsfm::report::EvaluateOptions o;
   };
   auto st = std::make_shared<EvalCli>();
   ev->add_option("--estimate", st->estimate, "estimate directory (trajectory.tum, summary.json)")->required();
@@ -25,9 +25,9 @@ void addEvaluateCommands(CLI::App& app, std::vector<Command>& commands) {
   ev->add_option("--rpe-delta", st->o.rpe_delta, "RPE frame distance (frames)")->capture_default_str();
   commands.push_back({ev, [st]() -> int {
     if (st->o.rpe_delta < 1) return fail(kBadInput, fmt::format("--rpe-delta must be >= 1, got {}", st->o.rpe_delta));
-    rsfm::io::Evaluation e;
+    rsfm::report::Evaluation e;
     try {
-      e = rsfm::io::evaluateDirectories(st->estimate, st->truth, st->o);
+      e = rsfm::report::evaluateDirectories(st->estimate, st->truth, st->o);
     } catch (const rsfm::io::InputError& err) {
       return fail(kBadInput, err.what());
     } catch (const std::exception& err) {
@@ -36,11 +36,11 @@ void addEvaluateCommands(CLI::App& app, std::vector<Command>& commands) {
     const std::string out = st->out.empty() ? st->estimate : st->out;
     if (auto msg = rsfm::io::ensureWritableDirectory(out); !msg.empty()) return fail(kBadInput, msg);
     try {
-      rsfm::io::writeEvaluation(e, out, invocation());
+      rsfm::report::writeEvaluation(e, out, invocation());
     } catch (const std::exception& err) {
       return fail(kRuntimeFailure, err.what());
     }
-    fmt::print("{}", rsfm::io::evaluationTable(e));
+    fmt::print("{}", rsfm::report::evaluationTable(e));
     return 0;
   }});
 }

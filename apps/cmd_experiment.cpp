@@ -10,10 +10,10 @@
 #include "rsfm/experiment/table1.hpp"
 #include "rsfm/experiment/two_object.hpp"
 #include "rsfm/io/atomic_file.hpp"
-#include "rsfm/io/planes_report.hpp"
-#include "rsfm/io/table1_report.hpp"
-#include "rsfm/io/two_object_report.hpp"
-#include "rsfm/io/patches_report.hpp"
+#include "rsfm/report/planes_report.hpp"
+#include "rsfm/report/table1_report.hpp"
+#include "rsfm/report/two_object_report.hpp"
+#include "rsfm/report/patches_report.hpp"
 #include "rsfm/experiment/patches.hpp"
 
 namespace rsfm::cli {
@@ -247,7 +247,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
       return fail(1, e.what());
     }
     try {
-      rsfm::io::writeTable1Report(res, out, invocation());
+      rsfm::report::writeTable1Report(res, out, invocation());
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }
@@ -276,7 +276,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     rsfm::PlanesResult res;
     try {
       res = rsfm::runPlanes(po);
-      rsfm::io::writePlanesReport(res, pout, invocation());
+      rsfm::report::writePlanesReport(res, pout, invocation());
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }
@@ -299,7 +299,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     rsfm::PatchesResult res;
     try {
       res = rsfm::runPatches(o);
-      rsfm::io::writePatchesReport(res, pas->out, invocation());
+      rsfm::report::writePatchesReport(res, pas->out, invocation());
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }
@@ -320,7 +320,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     rsfm::TwoObjectResult res;
     try {
       res = rsfm::runTwoObject(o);
-      rsfm::io::writeTwoObjectReport(res, tws->out, invocation());
+      rsfm::report::writeTwoObjectReport(res, tws->out, invocation());
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }

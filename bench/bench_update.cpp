@@ -11,8 +11,8 @@
 #include "rsfm/pipeline/refine.hpp"
 #include "rsfm/sim/box_scene.hpp"
 #include "rsfm/models/point_model.hpp"
-#include "rsfm/patch_filter.hpp"
-#include "rsfm/recursive_filter.hpp"
+#include "rsfm/filters/patch_filter.hpp"
+#include "rsfm/filters/recursive_filter.hpp"
 
 namespace {
 

@@ -10,7 +10,7 @@
 #include "rsfm/chi2.hpp"
 #include "rsfm/geometry.hpp"
 #include "rsfm/models/plane_model.hpp"
-#include "rsfm/recursive_filter.hpp"
+#include "rsfm/filters/recursive_filter.hpp"
 #include "rsfm/sim/table1_scene.hpp"
 
 namespace rsfm {

@@ -5,16 +5,16 @@
 #include <random>
 
 #include "rsfm/chi2.hpp"
+#include "rsfm/units.hpp"
 #include "rsfm/experiment/table1.hpp"
 #include "rsfm/geometry.hpp"
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/models/point_model.hpp"
-#include "rsfm/recursive_filter.hpp"
+#include "rsfm/filters/recursive_filter.hpp"
 
 namespace rsfm {
 namespace {
 
-constexpr double kDeg = M_PI / 180.0;
 
 // ---------------------------------------------------------------------------------------------
 // Noise-free Table 1 scene: both readings converge to the truth.
@@ -56,10 +56,10 @@ NoiselessResult runNoiselessPlane(RotationReading reading, int iterations = 1) {
     EXPECT_EQ(fs.health, kHealthy) << "frame " << k;
   }
   NoiselessResult r;
-  r.normal_err_deg = normalAngle(f.ekf().x().tail<3>(), so.plane) / kDeg;
+  r.normal_err_deg = normalAngle(f.ekf().x().tail<3>(), so.plane) / kDegToRad;
   r.beta_err = std::abs(f.beta() - so.beta);
   r.t_err = (f.translation() - scene.t.back()).norm();
-  r.rot_err_deg = rotationAngle(f.rotation(), scene.R.back()) / kDeg;
+  r.rot_err_deg = rotationAngle(f.rotation(), scene.R.back()) / kDegToRad;
   r.nz_final = f.ekf().x()[9];
   return r;
 }

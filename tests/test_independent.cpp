@@ -7,7 +7,7 @@
 #include "jacobian_checker.hpp"
 #include "rsfm/geometry.hpp"
 #include "rsfm/experiment/two_object.hpp"
-#include "rsfm/independent_filter.hpp"
+#include "rsfm/filters/independent_filter.hpp"
 #include "rsfm/sim/two_object_scene.hpp"
 
 namespace rsfm {

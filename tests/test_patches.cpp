@@ -300,7 +300,7 @@ TEST(PatchModel, ReportsInvisiblePlanesAndBadState) {
 // ---- The patch filter ----
 #include "rsfm/experiment/patches.hpp"
 #include "rsfm/geometry.hpp"
-#include "rsfm/patch_filter.hpp"
+#include "rsfm/filters/patch_filter.hpp"
 
 namespace rsfm {
 namespace {

@@ -11,7 +11,7 @@
 #include <random>
 #include <sstream>
 
-#include "rsfm/io/estimate_report.hpp"
+#include "rsfm/report/estimate_report.hpp"
 #include "rsfm/io/tracks_io.hpp"
 #include "rsfm/io/tum.hpp"
 #include "rsfm/pipeline/estimate.hpp"
@@ -68,7 +68,7 @@ void expectSame(const EstimateResult& lib, const Cli& cli) {
   for (const auto& f : r.frames) {
     io::TumPose tp;
     tp.t = f.frame;
-    io::poseOf(f, &tp.p, &tp.q);
+    report::poseOf(f, &tp.p, &tp.q);
     poses.push_back(tp);
   }
   std::ostringstream os;

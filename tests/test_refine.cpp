@@ -9,6 +9,7 @@
 #include <random>
 
 #include "rsfm/models/radial_camera.hpp"
+#include "rsfm/units.hpp"
 #include "rsfm/pipeline/estimate.hpp"
 #include "rsfm/render/scene_render.hpp"
 #include "rsfm/sim/box_scene.hpp"
@@ -16,7 +17,6 @@
 namespace rsfm {
 namespace {
 
-constexpr double kRadToDeg = 180.0 / M_PI;
 
 struct Synthetic {
   BoxScene scene;

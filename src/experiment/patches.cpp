@@ -1,5 +1,6 @@
 // Calway's synthetic experiment (DESIGN.md §5). See patches.hpp.
 #include "rsfm/experiment/patches.hpp"
+#include "rsfm/units.hpp"
 
 #include <Eigen/Geometry>
 #include <chrono>
@@ -10,14 +11,13 @@
 #include "rsfm/experiment/parallel.hpp"
 #include "rsfm/geometry.hpp"
 #include "rsfm/models/point_model.hpp"
-#include "rsfm/patch_filter.hpp"
-#include "rsfm/recursive_filter.hpp"
+#include "rsfm/filters/patch_filter.hpp"
+#include "rsfm/filters/recursive_filter.hpp"
 
 namespace rsfm {
 
 namespace {
 
-constexpr double kRadToDeg = 180.0 / 3.14159265358979323846;
 
 /// One filter's run over one trial.
 struct Run {

@@ -1,4 +1,5 @@
 #include "rsfm/experiment/planes.hpp"
+#include "rsfm/units.hpp"
 
 #include <algorithm>
 #include <atomic>
@@ -14,13 +15,12 @@
 #include "rsfm/geometry.hpp"
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/models/point_model.hpp"
-#include "rsfm/recursive_filter.hpp"
+#include "rsfm/filters/recursive_filter.hpp"
 #include "rsfm/sim/table1_scene.hpp"
 
 namespace rsfm {
 namespace {
 
-constexpr double kRad2Deg = 180.0 / M_PI;
 const std::vector<std::string> kMethods{"point", "plane-per-face", "planes-rigid", "planes-rigid-iekf", "batch"};
 
 /// What one method did in one trial.
@@ -436,19 +436,19 @@ PlanesResult runPlanes(const PlanesOptions& o) {
         ++ok;
         st += mt.sum_t2, nt += mt.n_t, sq += mt.sum_q2, nq += mt.n_q;
         const BoxScene& sc = scenes[i];
-        for (int j = 0; j < sc.faces(); ++j) row.normal_err_deg += normalAngle(mt.final_N[j], sc.normals[j]) * kRad2Deg / sc.faces();
+        for (int j = 0; j < sc.faces(); ++j) row.normal_err_deg += normalAngle(mt.final_N[j], sc.normals[j]) * kRadToDeg / sc.faces();
         for (int a = 0; a < sc.faces(); ++a)
           for (int b = a + 1; b < sc.faces(); ++b) {
             const double ang = std::acos(std::clamp(std::abs(mt.final_N[a].normalized().dot(mt.final_N[b].normalized())), 0.0, 1.0));
-            row.face_angle_err_deg += std::abs(ang * kRad2Deg - 90.0);
+            row.face_angle_err_deg += std::abs(ang * kRadToDeg - 90.0);
             ++pairs;
           }
         row.beta_err_pct += 100.0 * mt.beta_err;
         for (int k = 0; k <= F; ++k) {
-          row.normal_err_by_frame[k] += mt.normal_err[k] * kRad2Deg;
+          row.normal_err_by_frame[k] += mt.normal_err[k] * kRadToDeg;
           row.t_err_by_frame[k] += mt.t_err2[k];
         }
-        if (mt.crb_normal >= 0) crbn += mt.crb_normal * kRad2Deg, crbb += 100.0 * mt.crb_beta, ++crb;
+        if (mt.crb_normal >= 0) crbn += mt.crb_normal * kRadToDeg, crbb += 100.0 * mt.crb_beta, ++crb;
       }
       if (ok == 0) {
         row.rms_t = row.rms_q = row.normal_err_deg = row.face_angle_err_deg = row.beta_err_pct = nan;

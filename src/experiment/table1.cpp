@@ -1,4 +1,5 @@
 #include "rsfm/experiment/table1.hpp"
+#include "rsfm/units.hpp"
 
 #include <Eigen/Cholesky>
 #include <algorithm>
@@ -16,12 +17,11 @@
 #include "rsfm/geometry.hpp"
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/models/point_model.hpp"
-#include "rsfm/recursive_filter.hpp"
+#include "rsfm/filters/recursive_filter.hpp"
 
 namespace rsfm {
 namespace {
 
-constexpr double kRad2Deg = 180.0 / M_PI;
 
 /// Per-frame record of one filter in one trial.
 struct Track {
@@ -347,11 +347,11 @@ void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vec
       ser->n_x[k] += t->N[k].x() / K;
       ser->n_y[k] += t->N[k].y() / K;
       ser->beta[k] += t->beta[k] / K;
-      ser->normal_err_deg[k] += t->normal_err[k] * kRad2Deg / K;
+      ser->normal_err_deg[k] += t->normal_err[k] * kRadToDeg / K;
     }
     trial_t.push_back(std::sqrt(tt2 / (3.0 * F)));
     trial_q.push_back(std::sqrt(tq2 / (4.0 * F)));
-    row->final_normal_err_deg += t->normal_err[F] * kRad2Deg / K;
+    row->final_normal_err_deg += t->normal_err[F] * kRadToDeg / K;
     row->final_beta_err_pct += 100.0 * std::abs(t->beta[F] - o.scene.beta) / o.scene.beta / K;
     row->nees_static += t->nees_static / K;
     nis += t->nis_per_dof_sum;
@@ -376,7 +376,7 @@ void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vec
   for (const Track* t : ok)
     if (t->crb_ok) {
       row->crb_beta_pct += 100.0 * t->crb_beta_sd / o.scene.beta;
-      row->crb_normal_deg += t->crb_normal_rad * kRad2Deg;
+      row->crb_normal_deg += t->crb_normal_rad * kRadToDeg;
       ++crb_n;
     }
   if (crb_n > 0) {
@@ -391,7 +391,7 @@ void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vec
   for (const Track* t : ok)
     for (int k = 0; k <= F; ++k) Nm[k] += t->N[k] / K;
   for (int k = 0; k <= F; ++k) {
-    nerr[k] = normalAngle(Nm[k], scene0.unitNormal()) * kRad2Deg;
+    nerr[k] = normalAngle(Nm[k], scene0.unitNormal()) * kRadToDeg;
     berr[k] = std::abs(ser->beta[k] - o.scene.beta) / o.scene.beta;
   }
   row->r_s = convergenceFrame(nerr, 0.5);

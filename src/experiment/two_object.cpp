@@ -1,4 +1,5 @@
 #include "rsfm/experiment/two_object.hpp"
+#include "rsfm/units.hpp"
 
 #include <chrono>
 #include <cmath>
@@ -8,14 +9,13 @@
 
 #include "rsfm/experiment/parallel.hpp"
 #include "rsfm/geometry.hpp"
-#include "rsfm/independent_filter.hpp"
+#include "rsfm/filters/independent_filter.hpp"
 #include "rsfm/rotation.hpp"
 #include "rsfm/sim/table1_scene.hpp"
 
 namespace rsfm {
 namespace {
 
-constexpr double kRad2Deg = 180.0 / M_PI;
 
 struct TrialOut {
   bool failed = false;
@@ -58,9 +58,9 @@ TrialOut runTrial(const TwoObjectOptions& o, const TwoObjectScene& s, double noi
   IndependentPlanesFilter f(IndependentPlanesModel(uv[0], s.labels, 2), Ekf(x0, P0, fixed), fo);
   auto record = [&](int k) {
     for (int j = 0; j < 2; ++j) {
-      out.rot[j].push_back(rotationAngle(f.rotation(j), s.R[j][k]) * kRad2Deg);
+      out.rot[j].push_back(rotationAngle(f.rotation(j), s.R[j][k]) * kRadToDeg);
       out.t[j].push_back((f.translation(j) - s.t[j][k]).norm());
-      out.normal[j].push_back(normalAngle(f.plane(j), s.N[j]) * kRad2Deg);
+      out.normal[j].push_back(normalAngle(f.plane(j), s.N[j]) * kRadToDeg);
     }
     out.beta.push_back(100.0 * std::abs(f.beta() - 1.0));
   };
@@ -109,7 +109,7 @@ TwoObjectResult runTwoObject(const TwoObjectOptions& o) {
     scenes.push_back(makeTwoObjectScene(o.scene, rng));
   }
   for (int j = 0; j < 2; ++j) {
-    res.motion_rot_deg[j] = rotationAngle(scenes[0].R[j][F], Eigen::Matrix3d::Identity()) * kRad2Deg;
+    res.motion_rot_deg[j] = rotationAngle(scenes[0].R[j][F], Eigen::Matrix3d::Identity()) * kRadToDeg;
     res.motion_t[j] = scenes[0].t[j][F].norm();
   }
   std::vector<TrialOut> outs(static_cast<size_t>(L) * T);

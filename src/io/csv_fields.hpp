@@ -119,4 +119,62 @@ struct CsvHeader {
   }
 };
 
+/// The reading loop shared by tracks.csv and patches.csv (docs/tracks.md): '#' header lines
+/// (the shared keys, then `extra_key(key, stream, line)` for a format's own, which returns false
+/// for a comment), `begin(line)` once the header is complete, the column line `columns`, then per
+/// row: the field count, the frame and the id (`id_name`: "track" / "patch"), `values(fields,
+/// line)` (the format's own fields; throws), the frame within the declared range and rows in
+/// frame order with increasing ids, and `store(frame, id)`. Every problem is an InputError
+/// "FILE:LINE: ...".
+template <class ExtraKey, class Begin, class Values, class Store>
+void readRsfmCsv(const std::filesystem::path& file, CsvHeader& head, const std::string& columns, std::size_t fields,
+                 const char* id_name, const ExtraKey& extra_key, const Begin& begin, const Values& values,
+                 const Store& store) {
+  std::ifstream in = openCsv(file, head.name().c_str());
+  std::string line;
+  int ln = 0;
+  bool have_columns = false;
+  long long cur_frame = -1, cur_id = -1;
+  std::size_t rows = 0;
+  while (std::getline(in, line)) {
+    ++ln;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty()) continue;
+    if (!have_columns) {
+      if (line[0] == '#') {
+        std::istringstream ss(line.substr(1));
+        std::string key;
+        ss >> key;
+        if (!key.empty() && !head.parse(key, ss, file, ln)) extra_key(key, ss, ln);  // unknown keys are comments
+        continue;
+      }
+      head.finish(file, ln);
+      begin(ln);
+      if (line != columns) throw inputError(file, ln, fmt::format("expected the column header '{}', got '{}'", columns, line));
+      have_columns = true;
+      continue;
+    }
+    const auto f = split(line, ',');
+    if (f.size() != fields) throw inputError(file, ln, fmt::format("expected {} fields ({}), got {}", fields, columns, f.size()));
+    long long fr = 0, id = 0;
+    if (!parseInt(f[0], &fr)) throw inputError(file, ln, "frame is not an integer");
+    if (!parseInt(f[1], &id)) throw inputError(file, ln, fmt::format("{} id is not an integer", id_name));
+    values(f, ln);
+    if (fr < head.first_frame || fr > head.last_frame)
+      throw inputError(file, ln, fmt::format("frame {} outside the declared range {}..{}", fr, head.first_frame, head.last_frame));
+    if (id < 0 || id > 100000000) throw inputError(file, ln, fmt::format("{} id {} out of range", id_name, id));
+    if (fr < cur_frame) throw inputError(file, ln, fmt::format("frame {} after frame {}: rows must be in frame order", fr, cur_frame));
+    if (fr == cur_frame && id <= cur_id)
+      throw inputError(file, ln, fmt::format("{} {} repeated or out of order in frame {}", id_name, id, fr));
+    cur_frame = fr;
+    cur_id = id;
+    store(fr, id, ln);
+    ++rows;
+  }
+  if (in.bad()) throw inputError(file, ln, "read error");
+  if (!head.version) throw inputError(file, 0, fmt::format("empty file (not an rsfm {} file)", head.name()));
+  if (!have_columns) throw inputError(file, ln, fmt::format("no column header '{}'", columns));
+  if (rows == 0) throw inputError(file, ln, fmt::format("no {} rows", id_name));
+}
+
 }  // namespace rsfm::io::detail

@@ -1,4 +1,5 @@
 #include "rsfm/pipeline/patch_pipeline.hpp"
+#include "rsfm/units.hpp"
 
 #include "rsfm/geometry.hpp"
 
@@ -13,7 +14,6 @@ namespace rsfm {
 
 namespace {
 
-constexpr double kRadToDeg = 180.0 / 3.14159265358979323846;
 
 /// First-order sd (degrees) of the unit normal of structure s with 4x4 covariance of (beta, p1, p2, p4).
 double normalSdDeg(const Eigen::Vector3d& s, double beta, const Eigen::Matrix4d& cov) {

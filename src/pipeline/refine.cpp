@@ -1,4 +1,5 @@
 #include "rsfm/pipeline/refine.hpp"
+#include "rsfm/units.hpp"
 
 #include <fmt/format.h>
 
@@ -20,7 +21,6 @@
 namespace rsfm {
 namespace {
 
-constexpr double kRadToDeg = 180.0 / M_PI;
 
 double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
 

@@ -24,7 +24,7 @@
 #include <thread>
 
 #include "rsfm/eval/trajectory_metrics.hpp"
-#include "rsfm/io/evaluation.hpp"
+#include "rsfm/report/evaluation.hpp"
 #include "rsfm/io/input_error.hpp"
 #include "rsfm/io/summary.hpp"
 #include "rsfm/render/regime_suite.hpp"
@@ -223,7 +223,7 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
   // Sim(3) scale when the trajectories align.
   double scale = 1;
   try {
-    const io::Evaluation ev = io::evaluateDirectories(est_dir, *truth_dir, {});
+    const report::Evaluation ev = report::evaluateDirectories(est_dir, *truth_dir, {});
     scale = ev.ate.alignment.T.s;
     row.ate_pct = 100.0 * ev.ate.stats.rmse / ev.scale_ref;
     if (ev.rpe.pairs > 0) {

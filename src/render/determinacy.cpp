@@ -1,4 +1,5 @@
 #include "rsfm/render/determinacy.hpp"
+#include "rsfm/units.hpp"
 
 #include <fmt/format.h>
 
@@ -14,7 +15,6 @@
 namespace rsfm::render {
 namespace {
 
-constexpr double kRadToDeg = 180.0 / M_PI;
 
 struct Point {
   Eigen::Vector3d X;  // reference camera frame (COP-centred)

@@ -1,4 +1,5 @@
 #include "rsfm/render/scene_render.hpp"
+#include "rsfm/units.hpp"
 
 #include <fmt/format.h>
 
@@ -29,7 +30,6 @@ using Eigen::Vector3d;
 
 namespace {
 
-constexpr double kDeg = M_PI / 180.0;
 const char* kVispRoot = "/usr/share/visp-images-data/ViSP-images/";
 
 // The photographs' folder: $RSFM_VISP_IMAGES_DIR if set (tests use it to exercise the fallback),
@@ -389,21 +389,21 @@ struct Scene::Impl {
   Pose poseAt(double t) const {
     const RenderOptions& p = o;
     const double sweep = p.sweepDeg();
-    const double el_mid = 0.5 * (p.elevation0_deg + p.elevation1_deg) * kDeg;
+    const double el_mid = 0.5 * (p.elevation0_deg + p.elevation1_deg) * kDegToRad;
     auto onSphere = [&](double az, double el, double r) {
       return Vector3d(centre + r * Vector3d(std::sin(az) * std::cos(el), std::sin(el), std::cos(az) * std::cos(el)));
     };
-    const Vector3d C_mid = onSphere(az0_deg * kDeg, el_mid, r0);
+    const Vector3d C_mid = onSphere(az0_deg * kDegToRad, el_mid, r0);
     const Matrix3d R_mid = lookAt(C_mid, centre, 0);
     Pose out;
     switch (p.motion) {
       case MotionKind::Orbit: {
         const double u = t;
-        const double az = (az0_deg + sweep * (u - 0.5) + 1.0 * std::sin(2 * M_PI * 1.3 * u + ph[0])) * kDeg;
+        const double az = (az0_deg + sweep * (u - 0.5) + 1.0 * std::sin(2 * M_PI * 1.3 * u + ph[0])) * kDegToRad;
         const double el = (p.elevation0_deg + (p.elevation1_deg - p.elevation0_deg) * u +
-                           1.5 * std::sin(2 * M_PI * 0.8 * u + ph[1])) * kDeg;
+                           1.5 * std::sin(2 * M_PI * 0.8 * u + ph[1])) * kDegToRad;
         const double r = r0 * (1.0 + (p.approachRatio() - 1.0) * u) * (1.0 + 0.08 * std::sin(2 * M_PI * 0.6 * u + ph[2]));
-        const double roll = (4.0 * std::sin(2 * M_PI * 0.7 * u + ph[3]) + 1.5 * std::sin(2 * M_PI * 1.9 * u + ph[4])) * kDeg;
+        const double roll = (4.0 * std::sin(2 * M_PI * 0.7 * u + ph[3]) + 1.5 * std::sin(2 * M_PI * 1.9 * u + ph[4])) * kDegToRad;
         const Vector3d target =
             centre + 0.04 * Vector3d(std::sin(2 * M_PI * 1.1 * u + ph[5]), std::sin(2 * M_PI * 0.9 * u + ph[6]),
                                      std::sin(2 * M_PI * 1.7 * u + ph[7]));
@@ -413,7 +413,7 @@ struct Scene::Impl {
       }
       case MotionKind::Translate: {
         // Sideways along the camera's x axis; the whole baseline subtends `sweep` at the centre.
-        const double s = 2 * r0 * std::tan(0.5 * sweep * kDeg) * (t - 0.5);
+        const double s = 2 * r0 * std::tan(0.5 * sweep * kDegToRad) * (t - 0.5);
         out.R = R_mid;
         out.C = C_mid + R_mid.col(0) * s + R_mid.col(2) * (r0 - r0 * (1.0 + (p.approachRatio() - 1.0) * t));
         break;
@@ -421,7 +421,7 @@ struct Scene::Impl {
       case MotionKind::Rotate: {
         // Pan by `sweep` about the camera's y axis with a tilt arching up to 0.2 sweep, about the
         // centre of projection.
-        const double yaw = sweep * (t - 0.5) * kDeg, pitch = 0.2 * sweep * std::sin(M_PI * t) * kDeg;
+        const double yaw = sweep * (t - 0.5) * kDegToRad, pitch = 0.2 * sweep * std::sin(M_PI * t) * kDegToRad;
         out.C = C_mid;
         out.R = R_mid * Eigen::AngleAxisd(yaw, Vector3d::UnitY()).toRotationMatrix() *
                 Eigen::AngleAxisd(pitch, Vector3d::UnitX()).toRotationMatrix();
@@ -790,7 +790,7 @@ void Scene::Impl::buildPath() {
   const int n = o.movingFrames();
   if (o.jitter_deg > 0) {
     cv::RNG jr(o.seed * 6364136223846793005ULL + 1442695040888963407ULL);
-    const double s = o.jitter_deg * kDeg;
+    const double s = o.jitter_deg * kDegToRad;
     for (int j = 0; j < n; ++j) {
       jit_rot.emplace_back(jr.gaussian(s), jr.gaussian(s), jr.gaussian(s));
       jit_pos.emplace_back(jr.gaussian(s * r0), jr.gaussian(s * r0), jr.gaussian(s * r0));

@@ -1,5 +1,6 @@
 // Synthetic patch scenes (DESIGN.md §5). See patch_scene.hpp.
 #include "rsfm/sim/patch_scene.hpp"
+#include "rsfm/units.hpp"
 
 #include <Eigen/Dense>
 #include <Eigen/Geometry>
@@ -14,7 +15,6 @@ namespace rsfm {
 
 namespace {
 
-constexpr double kDeg = 3.14159265358979323846 / 180.0;
 constexpr double kHalfWidth = 0.5;  // sphere scene image half-width (f = 1, 53 degree field of view)
 
 Eigen::Vector2d project(const Eigen::Vector3d& X, double beta) { return X.head<2>() / (1.0 + beta * X.z()); }
@@ -27,7 +27,7 @@ void ray(const Eigen::Vector2d& c, double beta, Eigen::Vector3d* o, Eigen::Vecto
 
 /// Offsets (normalized image units) of a cluster: two rings of points around the centre.
 std::vector<Eigen::Vector2d> clusterOffsets(int n, double diameter_deg, double beta) {
-  const double r = std::tan(0.5 * diameter_deg * kDeg) / beta;
+  const double r = std::tan(0.5 * diameter_deg * kDegToRad) / beta;
   std::vector<Eigen::Vector2d> out;
   for (int j = 0; j < n; ++j) {
     const double a = 2.0 * 3.14159265358979323846 * j / n + (j % 2 ? 0.3 : 0.0);
@@ -50,7 +50,7 @@ bool clusterVisible(const Cluster& c, const std::vector<Eigen::Matrix3d>& R, con
   const Eigen::Vector3d cop(0, 0, -1.0 / beta);
   for (size_t k = 0; k < R.size(); ++k) {
     const Eigen::Vector3d Xc = R[k] * c.centre + t[k], n = R[k] * c.normal;
-    if (!(1.0 + beta * Xc.z() > 0.0) || !(n.dot((cop - Xc).normalized()) > std::cos(max_obliquity_deg * kDeg))) return false;
+    if (!(1.0 + beta * Xc.z() > 0.0) || !(n.dot((cop - Xc).normalized()) > std::cos(max_obliquity_deg * kDegToRad))) return false;
     if (project(Xc, beta).cwiseAbs().maxCoeff() > half_width) return false;
     for (const Eigen::Vector3d& X : c.pts) {
       const Eigen::Vector3d Y = R[k] * X + t[k];
@@ -137,8 +137,8 @@ PatchScene makeSphereScene(const SphereSceneOptions& o, std::mt19937_64& rng) {
   std::vector<Eigen::Vector3d> t(o.frames + 1);
   auto turn = [&](int k) {
     const double ph = 2.0 * 3.14159265358979323846 * k / o.frames;
-    return (Eigen::AngleAxisd(o.angle_x_deg * kDeg * std::sin(ph), Eigen::Vector3d::UnitX()) *
-            Eigen::AngleAxisd(o.angle_y_deg * kDeg * std::sin(ph + 1.0), Eigen::Vector3d::UnitY()))
+    return (Eigen::AngleAxisd(o.angle_x_deg * kDegToRad * std::sin(ph), Eigen::Vector3d::UnitX()) *
+            Eigen::AngleAxisd(o.angle_y_deg * kDegToRad * std::sin(ph + 1.0), Eigen::Vector3d::UnitY()))
         .toRotationMatrix();
   };
   const Eigen::Matrix3d Q0 = turn(0);
@@ -155,12 +155,12 @@ PatchScene makeSphereScene(const SphereSceneOptions& o, std::mt19937_64& rng) {
   const double min_sep = o.min_separation_deg;
   for (int tries = 0; static_cast<int>(clusters.size()) < o.patches; ++tries) {
     if (tries > 100000) throw std::runtime_error("sphere scene: cannot place the clusters");
-    const double ct = 1.0 - uni(rng) * (1.0 - std::cos(o.max_off_axis_deg * kDeg));
+    const double ct = 1.0 - uni(rng) * (1.0 - std::cos(o.max_off_axis_deg * kDegToRad));
     const double st = std::sqrt(std::max(0.0, 1.0 - ct * ct)), ph = 2.0 * 3.14159265358979323846 * uni(rng);
     const Eigen::Vector3d nrm = ct * towards + st * (std::cos(ph) * e1 + std::sin(ph) * e2);
     bool far = true;
     for (const Cluster& c : clusters)
-      if (std::acos(std::clamp(c.normal.dot(nrm), -1.0, 1.0)) < min_sep * kDeg) far = false;
+      if (std::acos(std::clamp(c.normal.dot(nrm), -1.0, 1.0)) < min_sep * kDegToRad) far = false;
     if (!far) continue;
     Cluster c;
     c.centre = o.centre + o.radius * nrm;

@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "rsfm/patch_filter.hpp"
+#include "rsfm/filters/patch_filter.hpp"
 #include "rsfm/sim/patch_scene.hpp"
 
 namespace rsfm {

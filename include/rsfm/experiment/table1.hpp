@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "rsfm/recursive_filter.hpp"
+#include "rsfm/filters/recursive_filter.hpp"
 #include "rsfm/rotation.hpp"
 #include "rsfm/sim/table1_scene.hpp"
 

@@ -20,7 +20,7 @@
 
 #include <optional>
 
-#include "rsfm/patch_filter.hpp"
+#include "rsfm/filters/patch_filter.hpp"
 #include "rsfm/track/patches.hpp"
 
 namespace rsfm {

@@ -18,7 +18,7 @@
 #include <string>
 #include <vector>
 
-#include "rsfm/recursive_filter.hpp"
+#include "rsfm/filters/recursive_filter.hpp"
 #include "rsfm/track/tracks.hpp"
 
 namespace rsfm {

@@ -1,13 +1,14 @@
-#include "rsfm/io/table1_report.hpp"
+#include "rsfm/report/table1_report.hpp"
 
 #include <fmt/format.h>
 
 #include <cmath>
 #include <map>
 
-#include "rsfm/io/report.hpp"
+#include "rsfm/report/report.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
+
 namespace {
 
 std::string num(double v, int prec = 4) { return formatNumber(v, prec); }
@@ -191,4 +192,4 @@ void writeTable1Report(const Table1Result& r, const std::filesystem::path& dir,
                     table1FigureData(r), "fig1", "plot_table1.py");
 }
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

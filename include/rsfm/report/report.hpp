@@ -4,7 +4,7 @@
 #include <string>
 #include <vector>
 
-namespace rsfm::io {
+namespace rsfm::report {
 
 /// Fixed-point text of v with `prec` decimals; "NA" when v is not finite (never "nan").
 std::string formatNumber(double v, int prec = 4);
@@ -29,4 +29,4 @@ void writeFigureReport(const std::filesystem::path& dir, const std::string& stem
                        const std::string& markdown, const std::string& data_stem, const std::string& data,
                        const std::string& figure_stem, const std::string& script);
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

@@ -9,7 +9,7 @@
 
 #include "rsfm/experiment/table1.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
 
 std::string table1Csv(const Table1Result& r);
 std::string table1Markdown(const Table1Result& r, const std::string& command_line);
@@ -20,4 +20,4 @@ std::string table1FigureData(const Table1Result& r);
 void writeTable1Report(const Table1Result& r, const std::filesystem::path& dir,
                        const std::string& command_line);
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

@@ -1,12 +1,13 @@
-#include "rsfm/io/two_object_report.hpp"
+#include "rsfm/report/two_object_report.hpp"
 
 #include <fmt/format.h>
 
 #include <cmath>
 
-#include "rsfm/io/report.hpp"
+#include "rsfm/report/report.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
+
 namespace {
 
 std::string num(double v, int prec = 4) { return formatNumber(v, prec); }
@@ -86,4 +87,4 @@ void writeTwoObjectReport(const TwoObjectResult& r, const std::filesystem::path&
                     twoObjectFigureData(r), "two_object", "plot_two_object.py");
 }
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

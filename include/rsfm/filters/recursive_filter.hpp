@@ -122,6 +122,26 @@ inline bool refineReference(const Eigen::Matrix2d& HPHt, double s2, const Eigen:
   return true;
 }
 
+/// ReferenceModel::Refine after an applied update, for any filter: every accepted observation
+/// (`used[b]` not gated) refines its point's reference position with refineReference at the
+/// posterior. `measure(id, &h, &H, &Hu)` predicts observation `id` at the posterior with its
+/// state Jacobian H (2 x n) and dh/d(u, v)^1 (Hu); false skips it.
+template <class Model, class Measure>
+void refineReferencesAt(Model& model, const std::vector<Observation>& obs, const std::vector<int>& used,
+                        const std::vector<std::uint8_t>& gated, double s2, const Eigen::MatrixXd& P,
+                        std::vector<Eigen::Matrix2d>* ref_cov, const Measure& measure) {
+  for (size_t b = 0; b < used.size(); ++b) {
+    if (b < gated.size() && gated[b]) continue;
+    const Observation& o = obs[used[b]];
+    Eigen::Vector2d h;
+    Eigen::MatrixXd H;
+    Eigen::Matrix2d Hu;
+    if (!measure(o.id, &h, &H, &Hu)) continue;
+    Eigen::Vector2d uv = model.reference(o.id);
+    if (refineReference(H * P * H.transpose(), s2, Hu, o.uv - h, &uv, &(*ref_cov)[o.id])) model.setReference(o.id, uv);
+  }
+}
+
 /// What one frame did.
 struct FrameStats {
   UpdateStats update;
@@ -295,19 +315,11 @@ class RecursiveFilter {
   void refineReferences(const std::vector<Observation>& obs, const std::vector<int>& used,
                         const std::vector<std::uint8_t>& gated) {
     const MotionContext m = MotionContext::fromState(ekf_.x(), Rg_);
-    const double s2 = opt_.sigma_uv * opt_.sigma_uv;
-    const Eigen::MatrixXd& P = ekf_.P();
-    for (size_t b = 0; b < used.size(); ++b) {
-      if (b < gated.size() && gated[b]) continue;
-      const Observation& o = obs[used[b]];
-      Eigen::Vector2d h;
-      Eigen::Matrix2d Hu;
-      Eigen::MatrixXd H;
-      if (model_.measure(m, ekf_.x(), o.id, &h, nullptr, nullptr, &Hu) != MeasureStatus::Ok) continue;
-      if (model_.measure(ekf_.x(), Rg_, o.id, nullptr, &H) != MeasureStatus::Ok) continue;
-      Eigen::Vector2d uv = model_.reference(o.id);
-      if (refineReference(H * P * H.transpose(), s2, Hu, o.uv - h, &uv, &ref_cov_[o.id])) model_.setReference(o.id, uv);
-    }
+    refineReferencesAt(model_, obs, used, gated, opt_.sigma_uv * opt_.sigma_uv, ekf_.P(), &ref_cov_,
+                       [&](int id, Eigen::Vector2d* h, Eigen::MatrixXd* H, Eigen::Matrix2d* Hu) {
+                         return model_.measure(m, ekf_.x(), id, h, nullptr, nullptr, Hu) == MeasureStatus::Ok &&
+                                model_.measure(ekf_.x(), Rg_, id, nullptr, H) == MeasureStatus::Ok;
+                       });
   }
 
   Model model_;

@@ -14,7 +14,7 @@
 #include "rsfm/pipeline/track_filter.hpp"
 #include "rsfm/track/tracks.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
 
 struct EstimateReport {
   const Tracks* tracks = nullptr;
@@ -46,7 +46,7 @@ nlohmann::json estimateSummary(const EstimateReport& r);
 
 /// Writes every file into `files` (temporaries under `dir`; the caller commits) and returns the
 /// summary it wrote. Throws std::runtime_error with a one-line message (e.g. the plot failed).
-nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesystem::path& dir, AtomicFileSet* files,
+nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesystem::path& dir, io::AtomicFileSet* files,
                          bool plots = true);
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

@@ -11,7 +11,7 @@
 #include "rsfm/pipeline/patch_pipeline.hpp"
 #include "rsfm/track/patches.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
 
 struct PatchReport {
   const PatchTracks* tracks = nullptr;
@@ -24,7 +24,7 @@ struct PatchReport {
 
 nlohmann::json patchSummary(const PatchReport& r);
 /// Writes every file into `files` (the caller commits); returns the summary.
-nlohmann::json writePatchReport(const PatchReport& r, const std::filesystem::path& dir, AtomicFileSet* files,
+nlohmann::json writePatchReport(const PatchReport& r, const std::filesystem::path& dir, io::AtomicFileSet* files,
                                 bool plots = true);
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

@@ -1,4 +1,4 @@
-#include "rsfm/io/estimate_report.hpp"
+#include "rsfm/report/estimate_report.hpp"
 
 #include <fmt/format.h>
 
@@ -7,13 +7,15 @@
 
 #include "rsfm/camera.hpp"
 #include "rsfm/geometry.hpp"
-#include "rsfm/io/report.hpp"
+#include "rsfm/report/report.hpp"
 #include "rsfm/io/tum.hpp"
 #include "rsfm/rotation.hpp"
 
 #include <algorithm>
 
-namespace rsfm::io {
+namespace rsfm::report {
+
+using namespace rsfm::io;  // the file formats the reports write
 
 void poseOf(const TrackFrame& f, Eigen::Vector3d* position, Eigen::Quaterniond* q) {
   const CameraPose p = copCentredPose(f.R, f.t, f.beta);
@@ -99,19 +101,8 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   const TrackFrame& last = res.frames.back();
   nlohmann::json j = summaryHead(toString(r.model), static_cast<int>(res.frames.size()), res.frames.front().frame,
                                  last.frame, t.image, res.scale_px, last.beta, last.var_beta);
-  nlohmann::json normals = nlohmann::json::array(), dist = nlohmann::json::array(), nsd = nlohmann::json::array(),
-                 dsd = nlohmann::json::array();
-  for (int p = 0; p < static_cast<int>(last.N.size()); ++p) {
-    const MetricPlane mp = metricPlane(last.N[p], last.beta, covBetaN(last, p));
-    normals.push_back({mp.n.x(), mp.n.y(), mp.n.z()});
-    dist.push_back(mp.d);
-    nsd.push_back(mp.sd_angle_deg);
-    dsd.push_back(mp.sd_d);
-  }
-  j["planes"] = normals;
-  j["plane_distances"] = dist;
-  j["plane_normal_sd_deg"] = nsd;
-  j["plane_distance_sd"] = dsd;
+  const nlohmann::json fin = finalEstimates(res);
+  for (const char* key : {"planes", "plane_distances", "plane_normal_sd_deg", "plane_distance_sd"}) j[key] = fin[key];
   if (r.model == TrackModel::Point) {
     // No planes: the per-plane lists stay empty (the summary schema pairs them with "planes").
     j["plane_tracks"] = nlohmann::json::array();
@@ -333,4 +324,4 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
   return summary;
 }
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

@@ -1,4 +1,4 @@
-#include "rsfm/io/evaluation.hpp"
+#include "rsfm/report/evaluation.hpp"
 
 #include <fmt/format.h>
 
@@ -9,7 +9,9 @@
 #include "rsfm/io/atomic_file.hpp"
 #include "rsfm/io/tum.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
+
+using namespace rsfm::io;  // the file formats the reports write
 namespace fs = std::filesystem;
 namespace {
 
@@ -237,4 +239,4 @@ void writeEvaluation(const Evaluation& e, const fs::path& out_dir, const std::st
   files.commit();
 }
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

@@ -9,11 +9,11 @@
 
 #include "rsfm/experiment/two_object.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
 
 std::string twoObjectCsv(const TwoObjectResult& r);
 std::string twoObjectMarkdown(const TwoObjectResult& r, const std::string& command_line);
 std::string twoObjectFigureData(const TwoObjectResult& r);
 void writeTwoObjectReport(const TwoObjectResult& r, const std::filesystem::path& dir, const std::string& command_line);
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

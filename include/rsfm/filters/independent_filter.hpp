@@ -9,7 +9,7 @@
 
 #include "rsfm/ekf.hpp"
 #include "rsfm/models/independent_planes_model.hpp"
-#include "rsfm/recursive_filter.hpp"
+#include "rsfm/filters/recursive_filter.hpp"
 #include "rsfm/rotation.hpp"
 
 namespace rsfm {
@@ -91,18 +91,10 @@ class IndependentPlanesFilter {
   /// state at its posterior, before omega is folded).
   void refineReferences(const std::vector<Observation>& obs, const std::vector<int>& used,
                         const std::vector<std::uint8_t>& gated) {
-    const double s2 = opt_.sigma_uv * opt_.sigma_uv;
-    const Eigen::MatrixXd& P = ekf_.P();
-    for (size_t b = 0; b < used.size(); ++b) {
-      if (b < gated.size() && gated[b]) continue;
-      const Observation& o = obs[used[b]];
-      Eigen::Vector2d h;
-      Eigen::MatrixXd H;
-      Eigen::Matrix2d Hu;
-      if (model_.measure(ekf_.x(), Rg_, o.id, &h, &H, &Hu) != MeasureStatus::Ok) continue;
-      Eigen::Vector2d uv = model_.reference(o.id);
-      if (refineReference(H * P * H.transpose(), s2, Hu, o.uv - h, &uv, &ref_cov_[o.id])) model_.setReference(o.id, uv);
-    }
+    refineReferencesAt(model_, obs, used, gated, opt_.sigma_uv * opt_.sigma_uv, ekf_.P(), &ref_cov_,
+                       [&](int id, Eigen::Vector2d* h, Eigen::MatrixXd* H, Eigen::Matrix2d* Hu) {
+                         return model_.measure(ekf_.x(), Rg_, id, h, H, Hu) == MeasureStatus::Ok;
+                       });
   }
 
   IndependentPlanesModel model_;

@@ -1,12 +1,13 @@
-#include "rsfm/io/patches_report.hpp"
+#include "rsfm/report/patches_report.hpp"
 
 #include <fmt/format.h>
 
 #include <cmath>
 
-#include "rsfm/io/report.hpp"
+#include "rsfm/report/report.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
+
 namespace {
 
 std::string num(double v, int prec = 4) { return formatNumber(v, prec); }
@@ -102,4 +103,4 @@ void writePatchesReport(const PatchesResult& r, const std::filesystem::path& dir
                     patchesFigureData(r), "patches", "plot_patches.py");
 }
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

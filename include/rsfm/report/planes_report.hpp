@@ -9,11 +9,11 @@
 
 #include "rsfm/experiment/planes.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
 
 std::string planesCsv(const PlanesResult& r);
 std::string planesMarkdown(const PlanesResult& r, const std::string& command_line);
 std::string planesFigureData(const PlanesResult& r);
 void writePlanesReport(const PlanesResult& r, const std::filesystem::path& dir, const std::string& command_line);
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

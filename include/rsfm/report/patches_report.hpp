@@ -9,11 +9,11 @@
 
 #include "rsfm/experiment/patches.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
 
 std::string patchesCsv(const PatchesResult& r);
 std::string patchesMarkdown(const PatchesResult& r, const std::string& command_line);
 std::string patchesFigureData(const PatchesResult& r);
 void writePatchesReport(const PatchesResult& r, const std::filesystem::path& dir, const std::string& command_line);
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

@@ -1,12 +1,13 @@
-#include "rsfm/io/planes_report.hpp"
+#include "rsfm/report/planes_report.hpp"
 
 #include <fmt/format.h>
 
 #include <cmath>
 
-#include "rsfm/io/report.hpp"
+#include "rsfm/report/report.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
+
 namespace {
 
 std::string num(double v, int prec = 4) { return formatNumber(v, prec); }
@@ -86,4 +87,4 @@ void writePlanesReport(const PlanesResult& r, const std::filesystem::path& dir, 
                     planesFigureData(r), "planes", "plot_planes.py");
 }
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

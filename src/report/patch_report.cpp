@@ -1,4 +1,5 @@
-#include "rsfm/io/patch_report.hpp"
+#include "rsfm/report/patch_report.hpp"
+#include "rsfm/units.hpp"
 
 #include <fmt/format.h>
 
@@ -8,16 +9,17 @@
 #include <sstream>
 
 #include "rsfm/geometry.hpp"
-#include "rsfm/io/estimate_report.hpp"
-#include "rsfm/io/report.hpp"
+#include "rsfm/report/estimate_report.hpp"
+#include "rsfm/report/report.hpp"
 #include "rsfm/io/tum.hpp"
 #include "rsfm/rotation.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
+
+using namespace rsfm::io;  // the file formats the reports write
 
 namespace {
 
-constexpr double kRadToDeg = 180.0 / 3.14159265358979323846;
 std::string num(double v, int prec = 6) { return formatNumber(v, prec); }
 
 }  // namespace
@@ -101,4 +103,4 @@ nlohmann::json writePatchReport(const PatchReport& r, const std::filesystem::pat
   return summary;
 }
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

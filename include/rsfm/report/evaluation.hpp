@@ -10,7 +10,7 @@
 #include "rsfm/io/input_error.hpp"
 #include "rsfm/io/summary.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
 
 struct EvaluateOptions {
   long long rpe_delta = 1;  ///< RPE frame distance (frames, >= 1)
@@ -53,4 +53,4 @@ std::string evaluationMarkdown(const Evaluation& e, const std::string& invocatio
 /// Writes out_dir/evaluation.json and out_dir/evaluation.md all-or-nothing (io::AtomicFileSet).
 void writeEvaluation(const Evaluation& e, const std::filesystem::path& out_dir, const std::string& invocation);
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report

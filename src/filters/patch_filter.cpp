@@ -1,5 +1,5 @@
 // Calway's affine-patch filter (seed 003; DESIGN.md §5). See patch_filter.hpp.
-#include "rsfm/patch_filter.hpp"
+#include "rsfm/filters/patch_filter.hpp"
 
 #include <Eigen/Cholesky>
 #include <algorithm>

@@ -1,4 +1,4 @@
-#include "rsfm/io/report.hpp"
+#include "rsfm/report/report.hpp"
 
 #include <fmt/format.h>
 
@@ -8,7 +8,9 @@
 
 #include "rsfm/io/atomic_file.hpp"
 
-namespace rsfm::io {
+namespace rsfm::report {
+
+using namespace rsfm::io;  // the file formats the reports write
 namespace {
 
 std::string shellQuote(const std::string& s) {
@@ -69,4 +71,4 @@ void writeFigureReport(const std::filesystem::path& dir, const std::string& stem
   files.commit();
 }
 
-}  // namespace rsfm::io
+}  // namespace rsfm::report
