@@ -236,3 +236,27 @@ TEST(Refine, PureTranslationDeterminesNeitherFocalLengthNorTilt) {
 
 }  // namespace
 }  // namespace rsfm
+
+namespace rsfm {
+namespace {
+
+TEST(Refine, AFailedRefinementKeepsTheOnlineEstimateAndSaysWhy) {
+  const Synthetic s = makeTracks(11, 0.3, Eigen::Vector2d::Zero(), 0.0, 0.0, 30);
+  EstimateOptions o;
+  o.refine.enabled = false;
+  EstimateResult r = estimate(s.tracks, o);
+  ASSERT_TRUE(r.online.ok());
+  // An online estimate that predicts nothing (non-finite focal length): no start to refine from.
+  TrackFilterResult broken = r.online;
+  for (auto& f : broken.frames) f.beta = std::nan("");
+  const RefineResult f = refine(s.tracks, r.planes.labels, broken, r.filter_used);
+  EXPECT_FALSE(f.ok);
+  EXPECT_NE(f.message.find("cannot predict"), std::string::npos) << f.message;
+  // Through the pipeline, a refinement that does not succeed leaves the filter's result as the main one.
+  r.refined = f;
+  EXPECT_EQ(&r.main(), &r.online);
+  EXPECT_EQ(&r.labels(), &r.planes.labels);
+}
+
+}  // namespace
+}  // namespace rsfm

@@ -241,6 +241,7 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
     row.worst_normal_err_deg = v.worst_normal_err_deg;
     row.normals_in_95 = v.normals_in_95;
     row.reported_undetermined = v.reported_undetermined;
+    row.focal_marked = s.contains("focal_determined") && s["focal_determined"] == false;
   }
   if (s.contains("online") && s["online"].is_object()) {
     // The recursive filter's own estimate (kept beside the refinement's).
@@ -422,7 +423,7 @@ BenchResult runBench(const BenchOptions& opt, const std::function<void(const std
       }
       say(fmt::format("regimes: [{}/{}] {}: {}; run exit {} in {:.1f} s{}{}", ++done, total_rendered, reg.name, rendered,
                       row.exit_code, row.seconds,
-                      row.focal_err_pct ? fmt::format(", focal {:+.1f} %", *row.focal_err_pct) : "",
+                      row.focal_err_pct ? fmt::format(", focal {:+.1f} %{}", *row.focal_err_pct, row.focal_marked ? " (reported not determined)" : "") : "",
                       row.exit_code ? ": " + row.message : ""));
     }});
   }
@@ -584,7 +585,9 @@ Aggregate aggregate(const std::vector<Row>& rows) {
       ++a.focal_pairs;
       a.focal_cov += r.focal_in_95.value_or(false);
       a.online_focal_cov += r.online_focal_in_95.value_or(false);
-      if (r.focal_err_pct) a.focal_err.push_back(std::abs(*r.focal_err_pct));
+      // The error of a focal length reported as a number; one reported not determined is counted
+      // under reported_undetermined (its interval under coverage), not as an error.
+      if (r.focal_err_pct && !r.focal_marked) a.focal_err.push_back(std::abs(*r.focal_err_pct));
       if (r.online_focal_err_pct) a.online_focal_err.push_back(std::abs(*r.online_focal_err_pct));
     }
     a.reported_undetermined += r.reported_undetermined;
@@ -613,7 +616,7 @@ Aggregate aggregate(const std::vector<Row>& rows) {
 
 const char* kCsvHeader =
     "sequence,kind,axes,frames,exit_code,message,frames_processed,seconds,fps,truth_check_px,focal_true_px,"
-    "focal_est_px,focal_sd_px,focal_err_pct,focal_in_95,focal_determinable,planes_true,planes_found,planes_matched,"
+    "focal_est_px,focal_sd_px,focal_err_pct,focal_in_95,focal_determinable,focal_reported_undetermined,planes_true,planes_found,planes_matched,"
     "worst_normal_err_deg,normals_in_95,structure_determinable,face_angle_err_deg,face_angle_deg,ate_pct,"
     "rpe_trans_pct,rpe_rot_deg,undetermined,reported_undetermined,online_focal_err_pct,online_focal_in_95,"
     "online_worst_normal_err_deg,online_normals_in_95,k1_true,k1_est";
@@ -625,12 +628,12 @@ std::string scoreboardCsv(const BenchResult& res) {
   for (const Row& r : res.rows) {
     const std::string fps =
         r.seconds > 0 && r.kind != "colmap" && r.exit_code == 0 ? fmt::format("{:.1f}", r.frames / r.seconds) : std::string();
-    s += fmt::format("{},{},{},{},{},{},{},{:.2f},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+    s += fmt::format("{},{},{},{},{},{},{},{:.2f},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                      csvField(r.sequence), r.kind, csvField(r.axes), r.frames, r.exit_code, csvField(r.message),
                      r.frames_processed, r.seconds, fps, fmtOpt(r.truth_check_px, "{:.3f}"),
                      fmtOpt(r.focal_true, "{:.1f}"), fmtOpt(r.focal_est, "{:.1f}"), fmtOpt(r.focal_sd, "{:.2f}"),
                      fmtOpt(r.focal_err_pct, "{:.2f}"), fmtBool(r.focal_in_95), r.focal_determinable ? "yes" : "no",
-                     r.planes_true, r.planes_found, r.planes_matched, fmtOpt(r.worst_normal_err_deg, "{:.2f}"),
+                     r.focal_marked ? "yes" : "no", r.planes_true, r.planes_found, r.planes_matched, fmtOpt(r.worst_normal_err_deg, "{:.2f}"),
                      r.normals_in_95, r.structure_determinable ? "yes" : "no", fmtOpt(r.face_angle_err_deg, "{:.2f}"),
                      fmtOpt(r.face_angle_deg, "{:.2f}"), fmtOpt(r.ate_pct, "{:.2f}"), fmtOpt(r.rpe_trans_pct, "{:.3f}"),
                      fmtOpt(r.rpe_rot_deg, "{:.3f}"), r.undetermined, r.reported_undetermined,
@@ -697,7 +700,8 @@ std::string scoreboardMarkdown(const BenchResult& res, const std::string& invoca
                      r.exit_code, r.frames_processed, r.frames,
                      r.seconds > 0 && r.exit_code == 0 ? fmt::format("{:.0f}", r.frames / r.seconds) : "",
                      fmtOpt(r.truth_check_px, "{:.2f}"),
-                     fmtOpt(r.focal_err_pct, "{:+.2f}"), fsd, r.focal_determinable ? "" : " (n.d.)", fmtBool(r.focal_in_95),
+                     fmtOpt(r.focal_err_pct, "{:+.2f}"), fsd,
+                     r.focal_marked ? " (reported n.d.)" : (r.focal_determinable ? "" : " (n.d.)"), fmtBool(r.focal_in_95),
                      r.planes_found, r.planes_true, fmtOpt(r.worst_normal_err_deg, "{:.2f}"), r.normals_in_95,
                      r.planes_matched, fmtOpt(r.face_angle_err_deg, "{:.2f}"), fmtOpt(r.ate_pct, "{:.2f}"),
                      fmtOpt(r.rpe_rot_deg, "{:.3f}"), r.undetermined, r.message);
@@ -807,6 +811,7 @@ std::string scoreboardJson(const BenchResult& res, const std::string& invocation
                          {"focal_err_pct", opt(r.focal_err_pct)},
                          {"focal_in_95", r.focal_in_95 ? nlohmann::ordered_json(*r.focal_in_95) : nlohmann::ordered_json(nullptr)},
                          {"focal_determinable", r.focal_determinable},
+                         {"focal_reported_undetermined", r.focal_marked},
                          {"planes_true", r.planes_true},
                          {"planes_found", r.planes_found},
                          {"planes_matched", r.planes_matched},

@@ -43,6 +43,7 @@ struct Row {
   std::optional<double> focal_err_pct;
   std::optional<bool> focal_in_95;        ///< |f - f_true| <= 1.96 sd
   bool focal_determinable = true;         ///< from the truth (render/determinacy.hpp)
+  bool focal_marked = false;              ///< the estimate reports the focal length not determined
   bool structure_determinable = true;
   int planes_true = 0, planes_found = 0, planes_matched = 0;
   std::optional<double> worst_normal_err_deg;
