@@ -262,6 +262,13 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
   rep.labels = &r.labels();
   rep.result = &res;
   rep.refined = &r.refined;
+  std::optional<report::GivenCamera> given;
+  if (e.est.camera) {
+    const vision::CameraCalibration& c = *e.est.camera;
+    given = report::GivenCamera{c.focal(), c.cx, c.cy, c.distortion, c.source};
+    rep.given_camera = &*given;
+  }
+  rep.focal_given = e.est.camera.has_value() || e.est.filter.focal_px > 0;
   rep.model = e.est.filter.model;
   rep.command = invocation();
   nlohmann::json cands = nlohmann::json::array();
@@ -294,8 +301,10 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
                                    s["focal_interval_px"][1].get<double>())
                      : "");
     else
-      fmt::print(stderr, "estimate: {} frames, focal {:.1f} +- {:.1f} px{}", res.frames.size(), s["focal_px"].get<double>(),
-                 s["focal_sd_px"].get<double>(), r.refined.ok ? " (refined)" : "");
+      fmt::print(stderr, "estimate: {} frames, focal {:.1f} {}", res.frames.size(), s["focal_px"].get<double>(),
+                 s.contains("focal_given") ? fmt::format("px (given: {})", e.est.camera ? e.est.camera->source : "--focal-px")
+                                           : fmt::format("+- {:.1f} px{}", s["focal_sd_px"].get<double>(),
+                                                         r.refined.ok ? " (refined)" : ""));
     for (const auto& a : s["angles_between_planes_deg"])
       fmt::print(stderr, ", angle between planes {} and {}: {:.1f} deg", a["planes"][0].get<int>(), a["planes"][1].get<int>(),
                  a["angle_deg"].get<double>());

@@ -25,8 +25,12 @@ if [ -f "$BOX_GZ" ]; then
   /usr/bin/python3 - "$OUT/box-run/summary.json" <<'PY'
 import json, sys
 s = json.load(open(sys.argv[1]))
-print(f"   planes {len(s['planes'])}, tracks per plane {s['plane_tracks']}, outliers {s['tracks']['outliers']}, "
-      f"focal {s['focal_px']:.1f} +- {s['focal_sd_px']:.1f} px")
+if s.get("focal_px") is None:  # reported not determined: the interval the data support
+    lo, hi = s.get("focal_interval_px", [float("nan")] * 2)
+    focal = f"focal not determined ({lo:.0f}-{hi:.0f} px supported)"
+else:
+    focal = f"focal {s['focal_px']:.1f} +- {s['focal_sd_px']:.1f} px"
+print(f"   planes {len(s['planes'])}, tracks per plane {s['plane_tracks']}, outliers {s['tracks']['outliers']}, {focal}")
 for a in s["angles_between_planes_deg"]:
     print(f"   angle between planes {a['planes'][0]} and {a['planes'][1]}: {a['angle_deg']:.1f} deg (box faces: 90)")
 print(f"   reprojection RMS per plane (px): {', '.join(f'{v:.2f}' for v in s['plane_reprojection_rms_px'])}")

@@ -203,6 +203,24 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
       j["refinement"] = {{"ok", false}, {"message", r.refined->message}};
     }
   }
+  if (r.focal_given) j["focal_given"] = true;
+  if (r.given_camera) {
+    // The tracks were undistorted onto the given pinhole: the camera is the given one, not an
+    // estimate (its focal length and principal point are held; sds zero).
+    const GivenCamera& g = *r.given_camera;
+    const double k1 = g.distortion.size() > 0 ? g.distortion[0] : 0.0, k2 = g.distortion.size() > 1 ? g.distortion[1] : 0.0;
+    j["camera"] = {{"given", true},
+                   {"source", g.source},
+                   {"focal_px", g.focal_px},
+                   {"principal_point_px", {g.cx, g.cy}},
+                   {"distortion", g.distortion},
+                   {"k1", k1},
+                   {"k2", k2},
+                   {"principal_point_estimated", false},
+                   {"distortion_estimated", false}};
+    j["principal_point_px"] = {g.cx, g.cy};
+    j["radial_distortion"] = {k1, k2};
+  }
   summaryTail(&j, res.stopped, r.command, r.seconds,
               "poses: camera in the reference (first) camera frame, x right, y down, z forward, COP-centred; "
               "normals: unit, reference camera frame, pointing from the camera to the plane (n.X = d > 0); "

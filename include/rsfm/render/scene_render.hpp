@@ -33,8 +33,9 @@
 namespace rsfm::render {
 
 /// Version of the renderer's output for given options: bump it whenever a change alters the
-/// pixels or the truth, so cached renderings (rsfm bench regimes) are made anew.
-inline constexpr int kRendererVersion = 3;
+/// pixels, the truth or the files written, so cached renderings (rsfm bench regimes) are made anew
+/// (4: truth/camera.yaml).
+inline constexpr int kRendererVersion = 4;
 
 /// What is in front of the camera (docs/render.md, "Scenes").
 enum class SceneKind {

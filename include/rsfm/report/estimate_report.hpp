@@ -16,11 +16,21 @@
 
 namespace rsfm::report {
 
+/// A calibration the user gave (`--camera`): the tracks were undistorted onto its pinhole before
+/// the estimation, so it is reported as given, not as estimated.
+struct GivenCamera {
+  double focal_px = 0, cx = 0, cy = 0;
+  std::vector<double> distortion;  ///< OpenCV's order: k1, k2, p1, p2[, k3, ...]
+  std::string source;              ///< the file
+};
+
 struct EstimateReport {
   const Tracks* tracks = nullptr;
   const std::vector<int>* labels = nullptr;  ///< per track id: plane, -1 outlier, -2 unused
   const TrackFilterResult* result = nullptr;  ///< the online filter's run
   const RefineResult* refined = nullptr;      ///< the refinement (null or not ok: none)
+  const GivenCamera* given_camera = nullptr;  ///< --camera (null: none given)
+  bool focal_given = false;                   ///< the focal length was given (--focal-px or --camera): held, not estimated
   TrackModel model = TrackModel::Planes;
   std::string command;
   double seconds = 0.0;
