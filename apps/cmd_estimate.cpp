@@ -306,8 +306,8 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
                                            : fmt::format("+- {:.1f} px{}", s["focal_sd_px"].get<double>(),
                                                          r.refined.ok ? " (refined)" : ""));
     for (const auto& a : s["angles_between_planes_deg"])
-      fmt::print(stderr, ", angle between planes {} and {}: {:.1f} deg", a["planes"][0].get<int>(), a["planes"][1].get<int>(),
-                 a["angle_deg"].get<double>());
+      fmt::print(stderr, ", angle between planes {} and {}: {:.1f} deg{}", a["planes"][0].get<int>(), a["planes"][1].get<int>(),
+                 a["angle_deg"].get<double>(), a.contains("determined") && !a["determined"].get<bool>() ? " (not determined)" : "");
     fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum{}, planes.csv, poses.csv, labels.csv{}{}{}\n", e.out,
                r.refined.ok ? ", trajectory_online.tum" : "",
                e.plots ? ", motion/normals/focal.png" : "", write_tracks ? ", tracks.csv" : "",

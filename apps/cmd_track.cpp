@@ -23,9 +23,10 @@ void addTrackerOptions(CLI::App* app, TrackCli* t) {
   app->add_option("--quality", o.quality, "Shi-Tomasi quality level")->capture_default_str();
   app->add_option("--min-distance", o.min_distance_px, "minimum corner distance (px)")->capture_default_str();
   app->add_option("--window", o.window_px, "Lucas-Kanade window (px)")->capture_default_str();
-  app->add_option("--levels", o.pyramid_levels, "pyramid levels")->capture_default_str();
+  app->add_option("--levels", o.pyramid_levels, "pyramid levels at least (more when the motion needs them)")->capture_default_str();
+  app->add_option("--max-levels", o.max_pyramid_levels, "pyramid levels at most (the first step uses these)")->capture_default_str();
   app->add_option("--fb-max", o.fb_max_px, "forward-backward error limit (px)")->capture_default_str();
-  app->add_option("--fb-check", o.fb_check, "forward-backward check: 1 on, 0 off, -1 auto (off when anchored)")->capture_default_str();
+  app->add_flag("!--no-fb-check", o.fb_check, "no forward-backward check (faster; a track that slips at a fast step carries on)");
   app->add_option("--anchor-every", o.anchor_every, "align each track to its first appearance every this many frames")->capture_default_str();
   app->add_flag("!--no-anchor", o.anchor, "frame-to-frame tracking only (no re-alignment to each track's first appearance)");
 }
@@ -69,6 +70,7 @@ std::string finishTrackerOptions(TrackCli* t) {
   if (!(o.min_distance_px > 0)) return "--min-distance must be positive";
   if (o.window_px < 5 || o.window_px % 2 == 0) return "--window must be an odd number >= 5";
   if (o.pyramid_levels < 0 || o.pyramid_levels > 8) return "--levels must be in 0..8";
+  if (o.max_pyramid_levels < o.pyramid_levels || o.max_pyramid_levels > 8) return "--max-levels must be in --levels..8";
   if (!(o.fb_max_px > 0)) return "--fb-max must be positive";
   if (!t->roi.empty()) {
     if (auto m = parsePolygon(t->roi, &t->tracker.roi); !m.empty()) return "--roi: " + m;

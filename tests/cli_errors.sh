@@ -255,6 +255,9 @@ echo "x" | gzip >"$TMP/box.mp4.gz"
 check "track: compressed video" 2 "$V4" -- track "$TMP/box.mp4.gz" --out "$V4" --quiet
 check "track: bad roi" 2 "$V4" -- track "$TMP/frames" --out "$V4" --roi 1,2,3 --quiet
 check "track: empty folder" 2 "$V4" -- track "$TMP/frames" --out "$V4" --quiet
+check "track: max-levels below levels" 2 "$V4" -- track "$TMP/frames" --out "$V4" --levels 3 --max-levels 2 --quiet
+grep -q "max-levels" "$TMP/err.txt" || { fail=$((fail + 1)); echo "FAIL max-levels message: $(cat "$TMP/err.txt")"; }
+check "track: old --fb-check" 2 "$V4" -- track "$TMP/frames" --out "$V4" --fb-check 1 --quiet
 # A short image sequence whose third frame is corrupt.
 for i in 0 1 2; do cp "$TMP/bad.png" "$TMP/frames/f00$i.png"; done
 check "track: corrupt frame" 2 "$V4" -- track "$TMP/frames/f%03d.png" --out "$V4" --quiet

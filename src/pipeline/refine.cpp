@@ -269,13 +269,18 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     const auto per = residualsPx(p, res.state, s, true);
     const double sigma1 = std::max(1e-3, robustSd(pooled(per)));
     std::vector<int> lab = selected;
+    r.plane_tracks.assign(m, 0);
+    r.plane_relabelled.assign(m, 0);
     for (std::size_t i = 0; i < per.size(); ++i) {
       double ss = 0;
       for (double x : per[i]) ss += x * x;
       const double rms = per[i].empty() ? 0.0 : std::sqrt(ss / per[i].size());
+      const int j = p.data.labels[i];
+      ++r.plane_tracks[j];
       if (rms > ro.outlier_sigmas * sigma1) {
         lab[p.track_of_point[i]] = -1;
         ++r.relabelled;
+        ++r.plane_relabelled[j];
       }
     }
     if (r.relabelled > 0) {
@@ -289,6 +294,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
           if (lab[id] == -1 && selected[id] >= 0) r.labels[id] = -1;
       } else {
         r.relabelled = 0;  // keep the previous solve
+        r.plane_relabelled.assign(m, 0);
       }
     }
   }
@@ -454,9 +460,15 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     const Eigen::Vector3d N = st.N[j], n = N.normalized();
     const Eigen::Matrix3d J = (Eigen::Matrix3d::Identity() - n * n.transpose()) / N.norm();
     const double sd = std::sqrt(std::max(0.0, (J * b.cov_N[j] * J.transpose()).trace())) * kRadToDeg;
-    const bool det = r.translation_significant && rotates && b.normal_estimable[j] && sd <= kDeterminedNormalSdDeg;
+    // A plane that lost most of its tracks as outliers was not one surface (two faces one
+    // homography carried at the pair frame, edges, shadows): what is left of it says little.
+    const bool mixed = j < static_cast<int>(r.plane_relabelled.size()) && 2 * r.plane_relabelled[j] > r.plane_tracks[j];
+    const bool det = r.translation_significant && rotates && b.normal_estimable[j] && sd <= kDeterminedNormalSdDeg && !mixed;
     r.plane_determined.push_back(det);
-    if (!det && r.translation_significant && rotates)
+    if (mixed)
+      why.push_back(fmt::format("plane {}: {} of its {} tracks were off it (not one surface)", j, r.plane_relabelled[j],
+                                r.plane_tracks[j]));
+    else if (!det && r.translation_significant && rotates)
       why.push_back(b.normal_estimable[j] ? fmt::format("plane {} normal sd {:.1f} deg (limit {:.0f} deg)", j, sd, kDeterminedNormalSdDeg)
                                           : fmt::format("plane {} is in the null space (e.g. pure rotation: no parallax)", j));
   }

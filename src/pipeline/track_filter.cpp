@@ -26,6 +26,7 @@ FilterOptions TrackFilterOptions::defaultFilter() {
   FilterOptions f;
   f.reference = ReferenceModel::Refine;
   f.iterate_after_frames = 10;  // with iterations > 1 (docs/filter.md)
+  f.mismatch_retries = 3;       // a fast or sudden motion: process noise x10, x100, x1000 (docs/estimate.md)
   return f;
 }
 
@@ -61,8 +62,10 @@ void accumulateResiduals(const RecursiveFilter<Model>& f, const std::vector<Obse
 std::string stopReason(int frame, const FrameStats& fs, int min_points) {
   if (fs.health & kInvalidRotation) return "frame " + std::to_string(frame) + ": the rotation update left dq's domain (|omega| >= 2)";
   if (!fs.update.applied && fs.health == kHealthy && (fs.update.health & kTooFewMeasurements))
-    return "frame " + std::to_string(frame) + ": only " + std::to_string(fs.update.used) +
-           " observations accepted, the model needs " + std::to_string(min_points);
+    return "frame " + std::to_string(frame) + ": only " + std::to_string(fs.update.used) + " of " +
+           std::to_string(fs.update.blocks) + " observations accepted" +
+           (fs.q_scale > 1.0 ? " (also with the process noise x" + std::to_string(static_cast<long>(fs.q_scale)) + ")" : "") +
+           ", the model needs " + std::to_string(min_points);
   const std::uint32_t h = fs.health != kHealthy ? fs.health : fs.update.health;
   return "frame " + std::to_string(frame) + ": " + describeHealth(h);
 }
@@ -91,6 +94,7 @@ TrackFrame frameOf(const RecursiveFilter<Model>& f, const FrameStats& fs, int fr
   tf.used = fs.update.used;
   tf.gated = fs.update.gated;
   tf.nis_per_dof = fs.update.nis_dof > 0 ? fs.update.nis / fs.update.nis_dof : 0.0;
+  tf.q_scale = fs.q_scale;
   return tf;
 }
 

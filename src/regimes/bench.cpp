@@ -202,7 +202,9 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
     std::sort(order.begin(), order.end());
     const int a = std::min(order[0].second, order[1].second), b = std::max(order[0].second, order[1].second);
     for (const auto& e : s["angles_between_planes_deg"])
-      if (e["planes"][0].get<int>() == a && e["planes"][1].get<int>() == b) row.face_angle_deg = e["angle_deg"].get<double>();
+      if (e["planes"][0].get<int>() == a && e["planes"][1].get<int>() == b &&
+          !(e.contains("determined") && !e["determined"].get<bool>()))
+        row.face_angle_deg = e["angle_deg"].get<double>();
   }
   if (!truth_dir) return;
   io::Summary truth, est;

@@ -137,6 +137,12 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   }
   j["gated_observations"] = gated;
   j["accepted_observations"] = used;
+  // Frames the online filter took again with more process noise (a model mismatch: the motion
+  // was faster or more sudden than its covariance allowed).
+  nlohmann::json mism = nlohmann::json::array();
+  for (const auto& f : r.result->frames)
+    if (f.q_scale > 1.0) mism.push_back({{"frame", f.frame}, {"process_noise_factor", f.q_scale}});
+  j["filter_mismatch_frames"] = mism;
   // Final focal length and normals of every pass (--passes): their spread is an honest measure
   // of how well the sequence determines them, which the filter's own sd does not capture.
   j["passes"] = res.passes;
@@ -163,6 +169,11 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
         if (rf.focal_interval_px) j["focal_interval_px"] = {(*rf.focal_interval_px)[0], (*rf.focal_interval_px)[1]};
       }
       j["plane_determined"] = rf.plane_determined;
+      for (auto& a : j["angles_between_planes_deg"]) {
+        const auto pa = a["planes"][0].get<std::size_t>(), pb = a["planes"][1].get<std::size_t>();
+        a["determined"] = pa < rf.plane_determined.size() && pb < rf.plane_determined.size() &&
+                          rf.plane_determined[pa] && rf.plane_determined[pb];
+      }
       j["structure_determined"] = std::all_of(rf.plane_determined.begin(), rf.plane_determined.end(), [](bool b) { return b; });
       j["not_determined_why"] = rf.why;
       const double sp = res.scale_px;
@@ -187,6 +198,8 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                          {"tracks", rf.tracks},
                          {"observations", rf.observations},
                          {"relabelled_outliers", rf.relabelled},
+                         {"plane_tracks", rf.plane_tracks},
+                         {"plane_relabelled", rf.plane_relabelled},
                          {"null_space_dim", rf.null_dim},
                          {"rotation_likelihood_ratio", rf.rotation_lr},
                          {"translation_likelihood_ratio", rf.translation_lr},

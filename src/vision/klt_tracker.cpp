@@ -1,6 +1,9 @@
 #include "rsfm/vision/klt_tracker.hpp"
 
 #include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
@@ -63,6 +66,7 @@ void KltTracker::detect(const cv::Mat& gray, bool first) {
       anchors_[next_id_] = std::move(a);
     }
     cur_.push_back({next_id_++, px});
+    vel_.push_back(Eigen::Vector2d::Constant(std::numeric_limits<double>::quiet_NaN()));
   }
 }
 
@@ -95,31 +99,73 @@ void KltTracker::anchor(std::vector<TrackPoint>* tracks) {
   tracks->swap(out);
 }
 
+std::vector<Eigen::Vector2d> KltTracker::predictedDisplacements() const {
+  // A track's own last displacement; a track without one takes its nearest neighbour's (the
+  // same surface most likely), none at all: zero.
+  std::vector<Eigen::Vector2d> d(cur_.size(), Eigen::Vector2d::Zero());
+  std::vector<int> known;
+  for (size_t i = 0; i < cur_.size(); ++i)
+    if (vel_[i].allFinite()) known.push_back(static_cast<int>(i));
+  for (size_t i = 0; i < cur_.size(); ++i) {
+    if (vel_[i].allFinite()) {
+      d[i] = vel_[i];
+      continue;
+    }
+    double best = INFINITY;
+    for (int j : known) {
+      const double dist = (cur_[j].px - cur_[i].px).squaredNorm();
+      if (dist < best) {
+        best = dist;
+        d[i] = vel_[j];
+      }
+    }
+  }
+  return d;
+}
+
+int KltTracker::levelsNeeded() const {
+  const bool any_velocity = std::any_of(vel_.begin(), vel_.end(), [](const Eigen::Vector2d& v) { return v.allFinite(); });
+  const int lo = std::max(0, o_.pyramid_levels), hi = std::max(lo, o_.max_pyramid_levels);
+  if (!any_velocity || last_pred_err95_ < 0) return hi;  // no motion seen yet: the deepest pyramid
+  int L = lo;
+  while (L < hi && 0.5 * o_.window_px * std::pow(2.0, L) < 2.0 * last_pred_err95_) ++L;
+  return L;
+}
+
 void KltTracker::process(const cv::Mat& frame) {
   const cv::Mat gray = toGray8(frame);
   const cv::Size win(o_.window_px, o_.window_px);
   if (o_.anchor) gray.convertTo(cur_float_, CV_32F);
+  const int built = std::max(o_.pyramid_levels, o_.max_pyramid_levels);
   std::vector<cv::Mat> pyr;
-  cv::buildOpticalFlowPyramid(gray, pyr, win, o_.pyramid_levels);
+  cv::buildOpticalFlowPyramid(gray, pyr, win, built);
   if (frames_.empty()) {
     size_ = gray.size();
     detect(gray, true);
+    levels_used_.push_back(0);
   } else if (!cur_.empty()) {
+    const int levels = levelsNeeded();
+    levels_used_.push_back(levels);
+    const std::vector<Eigen::Vector2d> pred = predictedDisplacements();
     std::vector<cv::Point2f> p0, p1, pb;
     p0.reserve(cur_.size());
-    for (const auto& t : cur_) p0.emplace_back(static_cast<float>(t.px.x()), static_cast<float>(t.px.y()));
+    p1.reserve(cur_.size());
+    for (size_t i = 0; i < cur_.size(); ++i) {
+      const Eigen::Vector2d& x = cur_[i].px;
+      p0.emplace_back(static_cast<float>(x.x()), static_cast<float>(x.y()));
+      p1.emplace_back(static_cast<float>(x.x() + pred[i].x()), static_cast<float>(x.y() + pred[i].y()));
+    }
     std::vector<uchar> st, stb;
     std::vector<float> err, errb;
     const cv::TermCriteria term(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 20, 0.03);
-    cv::calcOpticalFlowPyrLK(prev_pyr_, pyr, p0, p1, st, err, win, o_.pyramid_levels, term, 0, o_.min_eig);
+    cv::calcOpticalFlowPyrLK(prev_pyr_, pyr, p0, p1, st, err, win, levels, term, cv::OPTFLOW_USE_INITIAL_FLOW,
+                             o_.min_eig);
     pb = p0;
-    const bool fb = o_.fb_check == 1 || (o_.fb_check < 0 && !o_.anchor);
-    if (fb) {
-      cv::calcOpticalFlowPyrLK(pyr, prev_pyr_, p1, pb, stb, errb, win, o_.pyramid_levels, term,
-                               cv::OPTFLOW_USE_INITIAL_FLOW, o_.min_eig);
+    if (o_.fb_check) {
+      cv::calcOpticalFlowPyrLK(pyr, prev_pyr_, p1, pb, stb, errb, win, levels, term, cv::OPTFLOW_USE_INITIAL_FLOW,
+                               o_.min_eig);
     } else {
       stb = st;
-      for (size_t i = 0; i < p0.size(); ++i) pb[i] = p0[i];
     }
     std::vector<TrackPoint> next;
     next.reserve(cur_.size());
@@ -132,10 +178,43 @@ void KltTracker::process(const cv::Mat& frame) {
       next.push_back({cur_[i].id, Eigen::Vector2d(p1[i].x, p1[i].y)});
     }
     if (o_.anchor && !next.empty() && frames_.size() % std::max(1, o_.anchor_every) == 0) anchor(&next);
+    // The survivors' displacements (their velocity for the next prediction) and how far the
+    // prediction missed (the next step's pyramid depth).
+    std::vector<Eigen::Vector2d> next_vel;
+    std::vector<double> miss;
+    next_vel.reserve(next.size());
+    miss.reserve(next.size());
+    for (const TrackPoint& t : next) {
+      const auto it = std::lower_bound(cur_.begin(), cur_.end(), t.id, [](const TrackPoint& a, int id) { return a.id < id; });
+      const size_t i = static_cast<size_t>(it - cur_.begin());
+      next_vel.push_back(t.px - cur_[i].px);
+      miss.push_back((t.px - (cur_[i].px + pred[i])).norm());
+    }
+    if (!miss.empty()) {
+      const size_t q = std::min(miss.size() - 1, static_cast<size_t>(0.95 * static_cast<double>(miss.size())));
+      std::nth_element(miss.begin(), miss.begin() + static_cast<long>(q), miss.end());
+      last_pred_err95_ = miss[q];
+    }
     cur_.swap(next);
+    vel_.swap(next_vel);
     if (static_cast<double>(cur_.size()) < o_.redetect_below * o_.max_tracks) detect(gray, false);
+  } else {
+    levels_used_.push_back(0);
   }
-  std::sort(cur_.begin(), cur_.end(), [](const TrackPoint& a, const TrackPoint& c) { return a.id < c.id; });
+  // Sorted by id (vel_ along).
+  std::vector<size_t> order(cur_.size());
+  std::iota(order.begin(), order.end(), size_t{0});
+  std::sort(order.begin(), order.end(), [&](size_t a, size_t c) { return cur_[a].id < cur_[c].id; });
+  std::vector<TrackPoint> sorted;
+  std::vector<Eigen::Vector2d> sorted_vel;
+  sorted.reserve(cur_.size());
+  sorted_vel.reserve(cur_.size());
+  for (size_t i : order) {
+    sorted.push_back(cur_[i]);
+    sorted_vel.push_back(vel_[i]);
+  }
+  cur_.swap(sorted);
+  vel_.swap(sorted_vel);
   frames_.push_back(cur_);
   if (o_.anchor) {  // forget the templates of tracks that ended
     for (auto it = anchors_.begin(); it != anchors_.end();) {

@@ -114,6 +114,9 @@ double sameMotionFraction(const cv::Matx33d& H1, const std::vector<cv::Point2d>&
 }  // namespace
 
 PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
+  // A frame's homography tests a track when at least this many members determine it (4 fix
+  // it exactly; twice that leaves 8 residual degrees of freedom to show a bad fit).
+  constexpr int kMinSupport = 8;
   if (o.max_planes < 1 || o.min_plane_tracks < 4 || !(o.ransac_px > 0) || !(o.verify_px > 0) ||
       !(o.min_alive_fraction > 0 && o.min_alive_fraction <= 1))
     throw std::invalid_argument("plane finder: options out of range");
@@ -138,31 +141,52 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
   }
   res.pair_frame = pair;
 
-  // Per-frame least-squares homographies of a member set; drops members that stray.
+  // Each track's position in the reference frame: its own for reference tracks, its first
+  // position carried back by its plane's homography for a track that joined later (NaN: none).
+  std::vector<cv::Point2d> refpos(ids, cv::Point2d(NAN, NAN));
+  for (const auto& p : tracks.frames[0]) refpos[p.id] = pt(p);
+  // Per-frame least-squares homographies of a member set; drops members that stray. A frame's
+  // homography comes from the reference members (`joined` false) while at least kMinSupport of
+  // them are in view, else from every member: tracks that joined later extend a plane past its
+  // reference tracks' lives but never outvote them.
+  std::vector<char> joined(ids, 0);
+  const double ransac_px = o.ransac_px, verify_px = o.verify_px;
   auto fitAllFrames = [&](FoundPlane* c) {
     std::vector<int> members = c->members;
     for (int round = 0; round < 2; ++round) {
       c->H.assign(F, cv::Matx33d::eye());
+      c->support.assign(F, 0);
+      c->support[0] = static_cast<int>(members.size());
       std::vector<char> bad(ids, 0);
       for (int k = 1; k < F; ++k) {
         std::vector<cv::Point2d> a, b;
         std::vector<int> who;
-        for (int id : members) {
-          const TrackPoint* p0 = tracks.find(0, id);
-          const TrackPoint* pk = tracks.find(k, id);
-          if (p0 && pk) {
-            a.push_back(pt(*p0));
-            b.push_back(pt(*pk));
-            who.push_back(id);
+        auto collect = [&](bool with_joined) {
+          a.clear();
+          b.clear();
+          who.clear();
+          for (int id : members) {
+            const TrackPoint* pk = tracks.find(k, id);
+            if (std::isfinite(refpos[id].x) && pk && (with_joined || !joined[id])) {
+              a.push_back(refpos[id]);
+              b.push_back(pt(*pk));
+              who.push_back(id);
+            }
           }
-        }
+        };
+        collect(false);
+        if (static_cast<int>(a.size()) < kMinSupport) collect(true);
         if (!fitH(a, b, &c->H[k])) {
           c->H[k] = c->H[k - 1];
           continue;
         }
-        for (size_t i = 0; i < a.size(); ++i) {
-          const cv::Point2d q = apply(c->H[k], a[i]);
-          if (std::hypot(q.x - b[i].x, q.y - b[i].y) > o.verify_px) bad[who[i]] = 1;
+        c->support[k] = static_cast<int>(a.size());
+        // Every member in view is tested against it.
+        for (int id : members) {
+          const TrackPoint* pk = tracks.find(k, id);
+          if (!pk || !std::isfinite(refpos[id].x)) continue;
+          const cv::Point2d q = apply(c->H[k], refpos[id]);
+          if (std::hypot(q.x - pk->px.x(), q.y - pk->px.y()) > verify_px) bad[id] = 1;
         }
       }
       std::vector<int> keep;
@@ -178,9 +202,8 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
     for (int k = 1; k < F; k += std::max(1, F / 20)) {
       std::vector<double> d;
       for (int id : members) {
-        const TrackPoint* p0 = tracks.find(0, id);
         const TrackPoint* pk = tracks.find(k, id);
-        if (p0 && pk) d.push_back((pk->px - p0->px).norm());
+        if (std::isfinite(refpos[id].x) && pk) d.push_back(std::hypot(pk->px.x() - refpos[id].x, pk->px.y() - refpos[id].y));
       }
       if (d.size() < 3) continue;
       std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
@@ -217,7 +240,7 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
         b.push_back(pt(*tracks.find(pair, id)));
       }
       std::vector<uchar> mask;
-      cv::Mat h = cv::findHomography(a, b, cv::RANSAC, o.ransac_px, mask, 3000, 0.999);
+      cv::Mat h = cv::findHomography(a, b, cv::RANSAC, ransac_px, mask, 3000, 0.999);
       if (h.empty()) break;
       cv::Matx33d H(h);
       // Refit on the inliers and re-collect them (twice).
@@ -231,7 +254,7 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
         if (!fitH(ia, ib, &H)) break;
         for (size_t i = 0; i < a.size(); ++i) {
           const cv::Point2d q = apply(H, a[i]);
-          mask[i] = std::hypot(q.x - b[i].x, q.y - b[i].y) < o.ransac_px;
+          mask[i] = std::hypot(q.x - b[i].x, q.y - b[i].y) < ransac_px;
         }
       }
       FoundPlane c;
@@ -305,37 +328,59 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
 
   // Tracks not yet judged (born later, or reference tracks lost before the pair frame): carried
   // from their first frame b by H(k) H(b)^-1 of exactly one accepted plane. Members of rejected
-  // candidates stay outliers.
+  // candidates stay outliers. The planes' homographies are then fitted again on every member
+  // (joined tracks at their carried-back reference positions) and the test repeated, so a plane
+  // stays followed after its reference tracks have died: each round carries it as far as the
+  // tracks that joined in the previous one live.
   std::vector<char> judged(ids, 0);
   for (const auto& c : cands)
     for (int id : c.members) judged[id] = 1;
-  for (int id = 0; id < ids; ++id) {
-    const TrackSpan s = spans[id];
-    if (s.first < 0 || judged[id] || res.labels[id] == -2 || s.length() < 2) continue;
-    const TrackPoint* pb = tracks.find(s.first, id);
-    if (!pb) continue;
-    int fits = 0, which = -1;
-    for (int j : order) {
-      const auto& c = cands[j];
-      const cv::Matx33d Hb_inv = c.H[s.first].inv();
-      bool ok = true;
-      int checked = 0;
-      const int step = std::max(1, s.length() / 8);
-      for (int k = s.first + step; k <= s.last && ok; k += step) {
-        const TrackPoint* pk = tracks.find(k, id);
-        if (!pk) continue;
-        const cv::Point2d q = apply(c.H[k] * Hb_inv, pt(*pb));
-        ok = std::hypot(q.x - pk->px.x(), q.y - pk->px.y()) < o.verify_px;
-        ++checked;
+  for (int round = 0; round < 20; ++round) {
+    int n_joined = 0;
+    for (int id = 0; id < ids; ++id) {
+      const TrackSpan s = spans[id];
+      if (s.first < 0 || judged[id] || res.labels[id] == -2 || s.length() < 2) continue;
+      const TrackPoint* pb = tracks.find(s.first, id);
+      if (!pb) continue;
+      int fits = 0, which = -1;
+      for (int j : order) {
+        const auto& c = cands[j];
+        // Only frames whose homography its members determine (kMinSupport of them) test a track.
+        if (c.support[s.first] < kMinSupport) continue;
+        const cv::Matx33d Hb_inv = c.H[s.first].inv();
+        bool ok = true;
+        int checked = 0;
+        const int step = std::max(1, s.length() / 8);
+        for (int k = s.first + step; k <= s.last && ok; k += step) {
+          const TrackPoint* pk = tracks.find(k, id);
+          if (!pk || c.support[k] < kMinSupport) continue;
+          const cv::Point2d q = apply(c.H[k] * Hb_inv, pt(*pb));
+          ok = std::hypot(q.x - pk->px.x(), q.y - pk->px.y()) < verify_px;
+          ++checked;
+        }
+        if (ok && checked >= 2) {
+          ++fits;
+          which = c.label;
+        }
       }
-      if (ok && checked > 0) {
-        ++fits;
-        which = c.label;
+      if (fits == 1) {
+        res.labels[id] = which;
+        cands[order[which]].members.push_back(id);
+        judged[id] = 1;
+        joined[id] = 1;
+        refpos[id] = apply(cands[order[which]].H[s.first].inv(), pt(*pb));
+        ++n_joined;
       }
     }
-    if (fits == 1) {
-      res.labels[id] = which;
-      cands[order[which]].members.push_back(id);
+    if (n_joined == 0) break;
+    for (int j : order) {
+      const std::vector<int> before = cands[j].members;
+      fitAllFrames(&cands[j]);
+      // Members the refit drops are outliers again (and judged: they do not come back).
+      std::vector<char> kept(ids, 0);
+      for (int id : cands[j].members) kept[id] = 1;
+      for (int id : before)
+        if (!kept[id]) res.labels[id] = -1;
     }
   }
   res.candidates = std::move(cands);

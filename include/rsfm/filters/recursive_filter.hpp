@@ -104,6 +104,15 @@ struct FilterOptions {
   /// posterior covariance (estimate projection: x <- x + P e_beta (beta_min - beta) / P_beta,
   /// the minimum-P^-1-distance point on the constraint); P is kept.
   double beta_min = 0.0;
+  /// Model mismatch: a step whose update is refused because the gate rejected all but a few
+  /// observations, or that gates more than half of them, is taken again from the previous
+  /// posterior with the motion's process noise multiplied by mismatch_factor, up to
+  /// mismatch_retries times (factor, factor^2, ...): the state was further than its covariance
+  /// said (a fast or sudden motion), and the observations, not the stale prior, must decide. The
+  /// factor used is reported (FrameStats::q_scale); a step taken again uses the iterated update
+  /// (at least 5 iterations). 0 retries: the published filter.
+  int mismatch_retries = 0;
+  double mismatch_factor = 10.0;
 };
 
 /// One reference position's refinement (ReferenceModel::Refine), information form:
@@ -150,6 +159,7 @@ struct FrameStats {
   MeasureStatus first_problem = MeasureStatus::Ok;
   bool beta_projected = false;  ///< the update left beta < FilterOptions::beta_min (projected)
   std::uint32_t health = kHealthy;  ///< EKF health after the step (HealthFlag bits)
+  double q_scale = 1.0;  ///< the motion process noise's multiplier this step (FilterOptions::mismatch_retries)
   /// Observation index (into step()'s argument) of each measurement block; update.gated_mask
   /// is aligned with it.
   std::vector<int> used;
@@ -173,10 +183,6 @@ class RecursiveFilter {
   }
 
   FrameStats step(const std::vector<Observation>& obs) {
-    FrameStats fs;
-    Eigen::VectorXd q = Eigen::VectorXd::Constant(ekf_.size(), opt_.q_structure);
-    q.head<7>() = opt_.q_motion;
-    ekf_.predict(q);
     ensureReferenceCovariances();
     const std::vector<Eigen::Matrix2d>* rc =
         opt_.reference == ReferenceModel::Exact || opt_.reference == ReferenceModel::State ? nullptr : &ref_cov_;
@@ -187,14 +193,39 @@ class RecursiveFilter {
                                                                  : opt_.iterations;
     if (ref_index_ >= 0 && 2 * model_.numPoints() != ekf_.size() - ref_index_)
       throw std::logic_error("reference positions in the state: points cannot be added after the filter is built");
+    // The previous posterior, for a step taken again on a model mismatch.
+    const Eigen::VectorXd x_post = ekf_.x();
+    const Eigen::MatrixXd P_post = ekf_.P();
+    FrameStats fs;
     MeasurementBatch batch;
     std::vector<int> used;
-    linearize(ekf_.x(), obs, rc, &batch, &fs.invalid, &fs.first_problem, &used);
-    const Eigen::VectorXd x_prior = ekf_.x();
-    const Eigen::MatrixXd P_prior = ekf_.P();
-    fs.iterations = 1;
-    fs.update = ekf_.update(batch, opt_.update);
-    if (iterations > 1 && fs.update.applied) iterate(iterations, obs, rc, x_prior, P_prior, &batch, &used, &fs);
+    Eigen::VectorXd x_prior;
+    Eigen::MatrixXd P_prior;
+    double q_scale = 1.0;
+    for (int attempt = 0;; ++attempt) {
+      fs = FrameStats();
+      fs.q_scale = q_scale;
+      Eigen::VectorXd q = Eigen::VectorXd::Constant(ekf_.size(), opt_.q_structure);
+      q.head<7>() = opt_.q_motion * q_scale;
+      ekf_.predict(q);
+      linearize(ekf_.x(), obs, rc, &batch, &fs.invalid, &fs.first_problem, &used);
+      x_prior = ekf_.x();
+      P_prior = ekf_.P();
+      fs.iterations = 1;
+      fs.update = ekf_.update(batch, opt_.update);
+      // A step taken again is iterated (the prior is far from the data's optimum: one
+      // linearization at the prior overshoots).
+      const int it = attempt > 0 ? std::max({iterations, opt_.warmup_iterations, 5}) : iterations;
+      if (it > 1 && fs.update.applied) iterate(it, obs, rc, x_prior, P_prior, &batch, &used, &fs);
+      const UpdateStats& u = fs.update;
+      const bool refused_by_gate = !u.applied && (u.health & kTooFewMeasurements) && u.gated > 0 &&
+                                   u.blocks >= opt_.update.min_blocks;
+      const bool mostly_gated = u.applied && 2 * u.gated > u.blocks;
+      if (attempt >= opt_.mismatch_retries || !(refused_by_gate || mostly_gated)) break;
+      ekf_.mutableX() = x_post;
+      ekf_.mutableP() = P_post;
+      q_scale *= opt_.mismatch_factor;
+    }
     fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
     if (opt_.beta_min > 0.0 && fs.update.applied) fs.beta_projected = ekf_.projectLowerBound(idx::kBeta, opt_.beta_min);
     const Eigen::Vector3d omega = ekf_.x().template segment<3>(idx::kWx);

@@ -79,6 +79,9 @@ struct RefineResult {
   double robust_sigma_px = 0.0;  ///< 1.4826 MAD of the final residuals
   std::vector<int> labels;    ///< per track id after relabelling (outliers -1)
   int relabelled = 0;         ///< tracks relabelled outliers
+  /// Per plane: its tracks in the refinement and how many of them were relabelled outliers (more
+  /// than half: the plane is reported not determined, its tracks were not one surface).
+  std::vector<int> plane_tracks, plane_relabelled;
   int tracks = 0, observations = 0;
   int null_dim = 0;           ///< of the information matrix
   std::vector<int> undetermined_frames;  ///< frames whose pose the observations do not determine

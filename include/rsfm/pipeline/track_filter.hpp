@@ -93,6 +93,7 @@ struct TrackFrame {
   double nis_per_dof = 0.0;
   double rms_px = 0.0;  ///< posterior reprojection RMS of the accepted observations (px)
   std::uint32_t health = kHealthy;
+  double q_scale = 1.0;  ///< motion process noise multiplier of this step (FilterOptions::mismatch_retries)
 };
 
 struct TrackFilterResult {

@@ -1,7 +1,10 @@
 #pragma once
 // KLT tracking (docs/tracks.md): Shi-Tomasi corners refined to sub-pixel accuracy, pyramidal
 // Lucas-Kanade frame to frame with a forward-backward check, re-detection to keep enough tracks,
-// an optional region of interest in the first frame.
+// an optional region of interest in the first frame. Each track's position is predicted from its
+// own last displacement (a new track: its nearest neighbour's), and the pyramid is made as deep
+// as the last frame's prediction errors need, so slow and fast motion (0.1-10 deg per frame)
+// track with the same options.
 #include <opencv2/core.hpp>
 
 #include <map>
@@ -20,12 +23,17 @@ struct TrackerOptions {
   double min_distance_px = 8.0;     ///< minimum distance between corners (px)
   int block_size = 7;               ///< Shi-Tomasi block (px)
   int window_px = 11;               ///< Lucas-Kanade window side (px)
-  int pyramid_levels = 2;           ///< pyramid levels above the image
+  /// Pyramid levels above the image: at least pyramid_levels; more, up to max_pyramid_levels,
+  /// when the motion left after the prediction needs them: the smallest L with
+  /// (window_px / 2) 2^L >= 2 x the 95th percentile of the last frame's prediction errors; the
+  /// first step (no motion seen yet) uses max_pyramid_levels.
+  int pyramid_levels = 2;
+  int max_pyramid_levels = 5;
   double fb_max_px = 0.5;           ///< forward-backward error above which a track ends (px)
-  /// Forward-backward check: 1 on, 0 off, -1 automatic (on without anchoring; with anchoring the
-  /// affine alignment against the track's first appearance is the consistency check, and the
-  /// backward pass would double the cost).
-  int fb_check = -1;
+  /// Forward-backward check (a track ends when tracking back misses its start by more than
+  /// fb_max_px). Off only to save time on slow, clean sequences: without it a track that slips
+  /// onto similar texture at a fast step carries on there.
+  bool fb_check = true;
   double min_eig = 1e-4;            ///< LK minimum eigenvalue threshold (cv::OPTFLOW_LK_GET_MIN_EIGENVALS)
   double redetect_below = 0.7;      ///< re-detect when fewer than this fraction of max_tracks live
   int border_px = 10;               ///< tracks closer than this to the border end
@@ -38,7 +46,7 @@ struct TrackerOptions {
   bool anchor = true;
   AffineLkOptions affine;
   double anchor_max_px = 2.0;
-  int anchor_every = 2;             ///< align to the first appearance every this many frames
+  int anchor_every = 1;             ///< align to the first appearance every this many frames (2: 13 % faster tracking, focal errors 1.5x larger on the rendered orbits)
   /// Region of interest: polygon in the first frame's pixels (empty: the whole image). Later
   /// re-detections stay inside the convex hull of the live tracks that started in it.
   std::vector<cv::Point2f> roi;
@@ -55,14 +63,24 @@ class KltTracker {
   const std::vector<TrackPoint>& live() const { return cur_; }
   /// Times a track was re-anchored because its first appearance no longer matched.
   long reanchored() const { return reanchored_; }
+  /// Pyramid levels used per step (frame k: the step from k - 1; 0 for the first frame).
+  const std::vector<int>& levelsUsed() const { return levels_used_; }
 
  private:
   void detect(const cv::Mat& gray, bool first);
   void anchor(std::vector<TrackPoint>* tracks);
+  /// Each live track's predicted displacement into the next frame.
+  std::vector<Eigen::Vector2d> predictedDisplacements() const;
+  /// Pyramid levels for the next step (TrackerOptions::pyramid_levels).
+  int levelsNeeded() const;
   TrackerOptions o_;
   std::vector<cv::Mat> prev_pyr_;
   cv::Mat prev_gray_;
   std::vector<TrackPoint> cur_;
+  /// Per live track (cur_'s order): its last frame-to-frame displacement (NaN: none yet).
+  std::vector<Eigen::Vector2d> vel_;
+  double last_pred_err95_ = -1;    ///< 95th percentile of the last step's prediction errors (-1: none)
+  std::vector<int> levels_used_;
   struct Anchor {
     AffineTemplate tmpl;
     Eigen::Matrix2d A = Eigen::Matrix2d::Identity();

@@ -41,6 +41,7 @@ struct FoundPlane {
   int label = -1;                     ///< index among accepted planes (-1 if rejected)
   std::vector<int> members;           ///< track ids (reference and later tracks)
   std::vector<cv::Matx33d> H;         ///< reference -> frame k homography (k = 0..F-1; empty if unknown)
+  std::vector<int> support;           ///< members that determined H[k] (0: fit failed, H[k] = H[k-1])
   double median_motion_px = 0.0;      ///< largest median member displacement from the reference
   double same_motion_fraction = -1;   ///< plane+parallax agreement with the main plane (-1: main/untested)
 };

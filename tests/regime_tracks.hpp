@@ -1,0 +1,59 @@
+#pragma once
+// Test helper: tracks of a rendered regime's geometry, without rendering images.
+#include <Eigen/Core>
+
+#include <algorithm>
+#include <opencv2/core.hpp>
+#include <random>
+#include <vector>
+
+#include "rsfm/io/summary.hpp"
+#include "rsfm/render/scene_render.hpp"
+#include "rsfm/track/tracks.hpp"
+
+namespace rsfm::test {
+
+/// Tracks of a rendered regime's geometry without rendering images: a grid of points on its
+/// textured faces, followed while the truth's labels show them, projected by the truth camera
+/// (distortion and principal point included), with Gaussian noise.
+struct RegimeTracks {
+  Tracks tracks;
+  io::Summary truth;
+};
+inline RegimeTracks regimeTracks(const render::RenderOptions& o, double noise_px, unsigned seed) {
+  render::Scene scene(o);
+  RegimeTracks out;
+  out.truth = scene.truth();
+  Tracks& t = out.tracks;
+  t.image = ImageInfo::centred(o.width, o.height);  // the principal point is not given
+  t.frames.resize(o.frames);
+  std::vector<cv::Mat> labels;
+  for (int k = 0; k < o.frames; ++k) labels.push_back(scene.labels(k));
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> g(0.0, noise_px);
+  int id = 0;
+  for (const auto& f : scene.faces()) {
+    if (f.still_body || !f.textured || f.truth_index < 0) continue;
+    for (int i = 0; i < 12; ++i)
+      for (int j = 0; j < 12; ++j) {
+        const Eigen::Vector3d X = f.corners[0] + (i + 0.5) / 12 * (f.corners[1] - f.corners[0]) + (j + 0.5) / 12 * (f.corners[3] - f.corners[0]);
+        bool alive = true, any = false;
+        for (int k = 0; k < o.frames && alive; ++k) {
+          const auto x = scene.project(X, k);
+          alive = x && x->x() > 5 && x->y() > 5 && x->x() < o.width - 6 && x->y() < o.height - 6 &&
+                  labels[k].at<uchar>(static_cast<int>(std::lround(x->y())), static_cast<int>(std::lround(x->x()))) ==
+                      f.truth_index + 1;
+          if (alive) {
+            t.frames[k].push_back({id, *x + Eigen::Vector2d(g(rng), g(rng))});
+            any = true;
+          }
+        }
+        if (any) ++id;
+      }
+  }
+  for (auto& fr : t.frames) std::sort(fr.begin(), fr.end(), [](const TrackPoint& a, const TrackPoint& b) { return a.id < b.id; });
+  return out;
+}
+
+
+}  // namespace rsfm::test

@@ -1,0 +1,136 @@
+// Defaults that adapt to the data (docs/estimate.md, docs/tracks.md), one test per mechanism on
+// small rendered cases:
+//  - the tracker follows 5- and 10-degree steps (prediction from each track's own motion, a
+//    pyramid as deep as the prediction errors need, the forward-backward check); the fixed
+//    shallow pyramid without the check does not;
+//  - the filter takes a frame whose observations its gate rejects again with more process noise
+//    (a model mismatch) instead of stopping;
+//  - the plane finder keeps following a plane after its reference tracks have died (tracks that
+//    joined later carry it).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+#include "regime_tracks.hpp"
+#include "rsfm/pipeline/track_filter.hpp"
+#include "rsfm/render/regime_suite.hpp"
+#include "rsfm/render/scene_render.hpp"
+#include "rsfm/vision/klt_tracker.hpp"
+#include "rsfm/vision/plane_finder.hpp"
+
+namespace rsfm {
+namespace {
+
+struct TrackQuality {
+  int compared = 0;
+  double within_1px = 0;  ///< fraction of the last frame's tracks within 1 px of the truth
+};
+
+/// Tracks a regime's rendered frames and compares each track alive in the last frame with the
+/// truth's transfer of its first position (Scene::transfer).
+TrackQuality trackRegime(const std::string& name, const vision::TrackerOptions& to) {
+  const render::Regime* r = render::builtinRegimeSuite().find(name);
+  EXPECT_NE(r, nullptr);
+  if (!r) return {};
+  const render::Scene scene(r->options);
+  const int F = r->options.frames;
+  vision::KltTracker tracker(to);
+  std::vector<cv::Mat> labels(F);
+  for (int k = 0; k < F; ++k) {
+    const cv::Mat img = scene.render(k, &labels[k]);
+    tracker.process(img);
+  }
+  const Tracks t = tracker.tracks();
+  const auto spans = trackSpans(t);
+  TrackQuality q;
+  int good = 0;
+  for (const TrackPoint& p : t.frames[F - 1]) {
+    const int a = spans[p.id].first;
+    if (a == F - 1) continue;
+    const auto x = scene.transfer(t.find(a, p.id)->px, a, F - 1, labels[a]);
+    if (!x) continue;
+    ++q.compared;
+    good += (*x - p.px).norm() <= 1.0;
+  }
+  q.within_1px = q.compared ? static_cast<double>(good) / q.compared : 0.0;
+  return q;
+}
+
+TEST(Adaptive, TrackerFollowsFiveAndTenDegreeSteps) {
+  for (const char* name : {"box-5deg", "box-short-10deg"}) {
+    const TrackQuality q = trackRegime(name, {});
+    vision::TrackerOptions fixed;  // the defaults before: 2 levels, no prediction, no backward check
+    fixed.max_pyramid_levels = fixed.pyramid_levels;
+    fixed.fb_check = false;
+    fixed.anchor_every = 2;
+    const TrackQuality old = trackRegime(name, fixed);
+    std::printf("%s: %d tracks in the last frame, %.0f %% within 1 px (fixed shallow pyramid: %d, %.0f %%)\n", name,
+                q.compared, 100 * q.within_1px, old.compared, 100 * old.within_1px);
+    EXPECT_GE(q.compared, 50) << name;
+    EXPECT_GE(q.within_1px, 0.85) << name;
+    EXPECT_LT(old.within_1px, 0.6) << name;  // what the adaptation fixes
+  }
+}
+
+TEST(Adaptive, FilterTakesAMismatchedFrameAgainInsteadOfStopping) {
+  // 10 deg between frames: the fixed process noise (1e-4 rad^2, 0.6 deg sd) puts the second frame
+  // far outside the gate.
+  const render::Regime* r = render::builtinRegimeSuite().find("box-short-10deg");
+  ASSERT_NE(r, nullptr);
+  const test::RegimeTracks rt = test::regimeTracks(r->options, 0.2, 3);
+  const vision::PlaneFinding pf = vision::findPlanes(rt.tracks);
+  ASSERT_GE(pf.numPlanes(), 1);
+  TrackFilterOptions o;
+  o.model = TrackModel::Planes;
+  o.focal0_px = 0.9 * *rt.truth.focal_px;
+  TrackFilterOptions published = o;
+  published.filter.mismatch_retries = 0;
+  const TrackFilterResult a = runTrackFilter(rt.tracks, pf.labels, o);
+  const TrackFilterResult b = runTrackFilter(rt.tracks, pf.labels, published);
+  int retried = 0;
+  for (const auto& f : a.frames) retried += f.q_scale > 1.0;
+  int gated_a = 0, gated_b = 0;
+  for (const auto& f : a.frames) gated_a += f.gated;
+  for (const auto& f : b.frames) gated_b += f.gated;
+  std::printf("mismatch retries: %zu frames (%s), %d taken again, %d gated; without: %zu frames (%s), %d gated\n",
+              a.frames.size(), a.stopped.c_str(), retried, gated_a, b.frames.size(), b.stopped.c_str(), gated_b);
+  EXPECT_TRUE(a.stopped.empty()) << a.stopped;
+  EXPECT_EQ(static_cast<int>(a.frames.size()), rt.tracks.numFrames());
+  EXPECT_GT(retried, 0);
+  EXPECT_TRUE(!b.stopped.empty() || gated_b > 2 * gated_a) << "the published filter copes: the test shows nothing";
+}
+
+TEST(Adaptive, PlaneFinderFollowsAPlanePastItsReferenceTracks) {
+  // Reference tracks die early (a short life each); later tracks must join by the homographies
+  // that the tracks joined before them keep determined.
+  const render::Regime* r = render::builtinRegimeSuite().find("box-orbit");
+  ASSERT_NE(r, nullptr);
+  test::RegimeTracks rt = test::regimeTracks(r->options, 0.2, 4);
+  // Cut every track into pieces of 30 frames with new ids: nothing lives through the sequence.
+  Tracks cut;
+  cut.image = rt.tracks.image;
+  cut.frames.resize(rt.tracks.frames.size());
+  const int stride = rt.tracks.idBound();
+  for (std::size_t k = 0; k < rt.tracks.frames.size(); ++k)
+    for (const TrackPoint& p : rt.tracks.frames[k]) {
+      const int piece = static_cast<int>(k + 7 * (p.id % 4)) / 30;  // staggered
+      cut.frames[k].push_back({p.id + stride * piece, p.px});
+    }
+  for (auto& f : cut.frames) std::sort(f.begin(), f.end(), [](const TrackPoint& a, const TrackPoint& b) { return a.id < b.id; });
+  const vision::PlaneFinding pf = vision::findPlanes(cut);
+  ASSERT_GE(pf.numPlanes(), 2);
+  // Tracks alive in the last frame that are labelled with a plane.
+  const int F = cut.numFrames();
+  int labelled = 0, alive = 0;
+  for (const TrackPoint& p : cut.frames[F - 1]) {
+    ++alive;
+    labelled += pf.labels[p.id] >= 0;
+  }
+  std::printf("last frame: %d of %d tracks labelled with a plane\n", labelled, alive);
+  EXPECT_GE(labelled, alive * 7 / 10);
+}
+
+}  // namespace
+}  // namespace rsfm
