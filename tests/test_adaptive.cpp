@@ -6,14 +6,18 @@
 //  - the filter takes a frame whose observations its gate rejects again with more process noise
 //    (a model mismatch) instead of stopping;
 //  - the plane finder keeps following a plane after its reference tracks have died (tracks that
-//    joined later carry it).
+//    joined later carry it);
+//  - a sequence in which nothing moves says so;
+//  - tracks that run out before the last frame end the estimate there, with a result.
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
+#include <random>
 #include <opencv2/imgproc.hpp>
 
 #include "regime_tracks.hpp"
+#include "rsfm/pipeline/estimate.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
 #include "rsfm/render/regime_suite.hpp"
 #include "rsfm/render/scene_render.hpp"
@@ -130,6 +134,39 @@ TEST(Adaptive, PlaneFinderFollowsAPlanePastItsReferenceTracks) {
   }
   std::printf("last frame: %d of %d tracks labelled with a plane\n", labelled, alive);
   EXPECT_GE(labelled, alive * 7 / 10);
+}
+
+TEST(Adaptive, TracksRunningOutEndTheEstimateWithAResult) {
+  const render::Regime* r = render::builtinRegimeSuite().find("box-orbit");
+  ASSERT_NE(r, nullptr);
+  render::RenderOptions ro = r->options;
+  ro.frames = 80;
+  test::RegimeTracks rt = test::regimeTracks(ro, 0.2, 6);
+  for (std::size_t k = 50; k < rt.tracks.frames.size(); ++k) rt.tracks.frames[k].clear();  // all lost at frame 50
+  const EstimateResult e = estimate(rt.tracks, EstimateOptions{});
+  EXPECT_TRUE(e.online.ok()) << e.online.stopped;
+  EXPECT_EQ(e.online.frames.size(), 50u);
+  EXPECT_NE(e.online.ended.find("ran out at frame 50"), std::string::npos) << e.online.ended;
+  EXPECT_TRUE(e.refined.ok) << e.refined.message;
+  EXPECT_EQ(e.refined.state.frames.size(), 50u);
+}
+
+TEST(Adaptive, NothingMovingSaysSo) {
+  // A still camera before a still scene: 60 frames of tracks that only jitter by 0.05 px.
+  Tracks t;
+  t.image = ImageInfo::centred(640, 480);
+  t.frames.resize(60);
+  std::mt19937 rng(3);
+  std::normal_distribution<double> g(0.0, 0.05);
+  for (int k = 0; k < 60; ++k)
+    for (int i = 0; i < 100; ++i)
+      t.frames[k].push_back({i, Eigen::Vector2d(40 + 56 * (i % 10), 40 + 40 * (i / 10)) + Eigen::Vector2d(g(rng), g(rng))});
+  try {
+    estimate(t, EstimateOptions{});
+    FAIL() << "a still sequence was estimated";
+  } catch (const NoPlaneFound& e) {
+    EXPECT_NE(std::string(e.what()).find("nothing moves"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

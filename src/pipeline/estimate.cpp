@@ -54,6 +54,24 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   }
   const vision::PlaneFinding& pf = r.planes;
   if (pf.numPlanes() == 0) {
+    // Nothing moved at all: every candidate is static, and fewer reference tracks than a plane
+    // needs ever move more than static_px from where they were in frame 0.
+    int moving = 0, total = 0;
+    for (const TrackPoint& p0 : tracks.frames.empty() ? std::vector<TrackPoint>{} : tracks.frames[0]) {
+      double m = 0;
+      for (int k = 1; k < tracks.numFrames(); ++k)
+        if (const TrackPoint* pk = tracks.find(k, p0.id)) m = std::max(m, (pk->px - p0.px).norm());
+      moving += m > o.finder.static_px;
+      ++total;
+    }
+    const bool all_static = !pf.candidates.empty() &&
+                            std::all_of(pf.candidates.begin(), pf.candidates.end(),
+                                        [](const vision::FoundPlane& c) { return c.verdict == vision::PlaneVerdict::Static; });
+    if (all_static && moving < o.finder.min_plane_tracks)
+      throw NoPlaneFound(fmt::format("nothing moves: {} of the {} tracks of frame {} ever move more than {:.0f} px in {} frames "
+                                     "(a still camera before a still scene determines neither motion nor structure); use a "
+                                     "stretch where the camera or the object moves (--first, --last)",
+                                     moving, total, tracks.first_frame, o.finder.static_px, tracks.numFrames()));
     std::string cands;
     for (const auto& c : pf.candidates)
       cands += fmt::format("{}{} {} tracks", cands.empty() ? "" : ", ", vision::toString(c.verdict), c.members.size());
@@ -93,8 +111,17 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   }
   r.filter_used = fopt;
   r.online = runTrackFilter(tracks, pf.labels, fopt, progress);
+  if (!r.online.ended.empty()) say("warning: " + r.online.ended);
   if (o.refine.enabled && r.online.ok() && fopt.model != TrackModel::Point) {
-    r.refined = refine(tracks, pf.labels, r.online, fopt, known.refine);
+    // The refinement covers the frames the filter estimated.
+    Tracks covered;
+    const Tracks* rt = &tracks;
+    if (static_cast<int>(r.online.frames.size()) < tracks.numFrames()) {
+      covered = tracks;
+      covered.frames.resize(r.online.frames.size());
+      rt = &covered;
+    }
+    r.refined = refine(*rt, pf.labels, r.online, fopt, known.refine);
     if (r.refined.ok) {
       say(fmt::format("refine: focal {:.1f} px, {} in {:.2f} s", r.refined.state.scale_px / r.refined.state.frames.back().beta,
                       r.refined.message, r.refined.seconds));

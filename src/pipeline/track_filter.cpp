@@ -70,6 +70,21 @@ std::string stopReason(int frame, const FrameStats& fs, int min_points) {
   return "frame " + std::to_string(frame) + ": " + describeHealth(h);
 }
 
+/// The tracks on the planes ran out: fewer observations offered than the model needs (not a
+/// failure of the filter: the sequence ends there for it).
+constexpr int kMinFramesBeforeEnd = 10;  // an estimate of fewer frames is no estimate: stop instead
+
+std::string ranOutNote(int frame, int offered, int min_points) {
+  return "the tracks on the planes ran out at frame " + std::to_string(frame) + " (" + std::to_string(offered) +
+         " observations, the model needs " + std::to_string(min_points) + "): the estimate ends at frame " +
+         std::to_string(frame - 1);
+}
+
+bool ranOut(const FrameStats& fs, int min_points) {
+  return !fs.update.applied && fs.health == kHealthy && (fs.update.health & kTooFewMeasurements) &&
+         fs.update.blocks < min_points;
+}
+
 /// After one step: the reason to stop (empty: go on). Numerical trouble from the EKF, too few
 /// accepted observations, or beta leaving the positive range.
 template <class Model>
@@ -181,6 +196,10 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       for (const auto& p : tracks.frames[k])
         if (pidx[p.id] >= 0) obs.push_back({pidx[p.id], uvOf(p.px)});
       const FrameStats fs = f.step(obs);
+      if (k >= kMinFramesBeforeEnd && ranOut(fs, PointModel::kMinPoints)) {
+        res.ended = ranOutNote(tracks.first_frame + k, fs.update.blocks, PointModel::kMinPoints);
+        break;
+      }
       res.stopped = afterStep(f, fs, tracks.first_frame + k);
       if (!res.stopped.empty()) break;
       TrackFrame tf = frameOf(f, fs, tracks.first_frame + k, static_cast<int>(obs.size()));
@@ -244,6 +263,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
   for (int pass = 1; pass <= o.passes; ++pass) {
     res.frames.clear();
     res.stopped.clear();
+    res.ended.clear();
     const bool last_pass = pass == o.passes;
     const int n = 7 + 3 * m;
     std::vector<Eigen::Vector2d> ref;
@@ -299,6 +319,10 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
           grp.push_back(labels[p.id]);
         }
       const FrameStats fs = f.step(obs);
+      if (k >= kMinFramesBeforeEnd && ranOut(fs, PlaneModel::kMinPoints)) {
+        res.ended = ranOutNote(tracks.first_frame + k, fs.update.blocks, PlaneModel::kMinPoints);
+        break;
+      }
       res.stopped = afterStep(f, fs, tracks.first_frame + k);
       if (!res.stopped.empty()) break;
       TrackFrame tf = frameOf(f, fs, tracks.first_frame + k, static_cast<int>(obs.size()));

@@ -143,6 +143,8 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   for (const auto& f : r.result->frames)
     if (f.q_scale > 1.0) mism.push_back({{"frame", f.frame}, {"process_noise_factor", f.q_scale}});
   j["filter_mismatch_frames"] = mism;
+  // The tracks on the planes ran out before the input's last frame (TrackFilterResult::ended).
+  j["ended_early"] = r.result->ended.empty() ? nlohmann::json(nullptr) : nlohmann::json(r.result->ended);
   // Final focal length and normals of every pass (--passes): their spread is an honest measure
   // of how well the sequence determines them, which the filter's own sd does not capture.
   j["passes"] = res.passes;

@@ -104,7 +104,10 @@ struct TrackFilterResult {
   std::vector<int> plane_new_tracks; ///< of which joined after the reference frame
   std::vector<double> plane_rms_px;  ///< posterior reprojection RMS per plane over all frames (px)
   std::vector<int> transfer_failed;  ///< later tracks whose transfer failed, per plane
-  std::string stopped;               ///< empty when every frame was processed, else why not
+  std::string stopped;               ///< empty unless the filter failed (numerical trouble, beta <= 0, the gate): why
+  /// Non-empty when the tracks on the planes ran out before the last frame (after at least 10
+  /// frames): the result covers the frames before it and is valid (ok()); this says where and why.
+  std::string ended;
   int passes = 1;                    ///< passes run
   std::vector<double> pass_focal_px; ///< final focal length of each pass
   std::vector<std::vector<Eigen::Vector3d>> pass_N;  ///< final planes of each pass
