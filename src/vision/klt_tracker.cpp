@@ -1,9 +1,9 @@
 #include "rsfm/vision/klt_tracker.hpp"
 
 #include <algorithm>
+#include <cassert>
 #include <cmath>
 #include <limits>
-#include <numeric>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
@@ -142,10 +142,8 @@ void KltTracker::process(const cv::Mat& frame) {
   if (frames_.empty()) {
     size_ = gray.size();
     detect(gray, true);
-    levels_used_.push_back(0);
   } else if (!cur_.empty()) {
     const int levels = levelsNeeded();
-    levels_used_.push_back(levels);
     const std::vector<Eigen::Vector2d> pred = predictedDisplacements();
     std::vector<cv::Point2f> p0, p1, pb;
     p0.reserve(cur_.size());
@@ -198,23 +196,10 @@ void KltTracker::process(const cv::Mat& frame) {
     cur_.swap(next);
     vel_.swap(next_vel);
     if (static_cast<double>(cur_.size()) < o_.redetect_below * o_.max_tracks) detect(gray, false);
-  } else {
-    levels_used_.push_back(0);
   }
-  // Sorted by id (vel_ along).
-  std::vector<size_t> order(cur_.size());
-  std::iota(order.begin(), order.end(), size_t{0});
-  std::sort(order.begin(), order.end(), [&](size_t a, size_t c) { return cur_[a].id < cur_[c].id; });
-  std::vector<TrackPoint> sorted;
-  std::vector<Eigen::Vector2d> sorted_vel;
-  sorted.reserve(cur_.size());
-  sorted_vel.reserve(cur_.size());
-  for (size_t i : order) {
-    sorted.push_back(cur_[i]);
-    sorted_vel.push_back(vel_[i]);
-  }
-  cur_.swap(sorted);
-  vel_.swap(sorted_vel);
+  // Ids ascend: survivors keep their order and detect() appends fresh, larger ids (the lookups
+  // above and Tracks rely on it).
+  assert(std::is_sorted(cur_.begin(), cur_.end(), [](const TrackPoint& a, const TrackPoint& c) { return a.id < c.id; }));
   frames_.push_back(cur_);
   if (o_.anchor) {  // forget the templates of tracks that ended
     for (auto it = anchors_.begin(); it != anchors_.end();) {

@@ -63,8 +63,6 @@ class KltTracker {
   const std::vector<TrackPoint>& live() const { return cur_; }
   /// Times a track was re-anchored because its first appearance no longer matched.
   long reanchored() const { return reanchored_; }
-  /// Pyramid levels used per step (frame k: the step from k - 1; 0 for the first frame).
-  const std::vector<int>& levelsUsed() const { return levels_used_; }
 
  private:
   void detect(const cv::Mat& gray, bool first);
@@ -80,7 +78,6 @@ class KltTracker {
   /// Per live track (cur_'s order): its last frame-to-frame displacement (NaN: none yet).
   std::vector<Eigen::Vector2d> vel_;
   double last_pred_err95_ = -1;    ///< 95th percentile of the last step's prediction errors (-1: none)
-  std::vector<int> levels_used_;
   struct Anchor {
     AffineTemplate tmpl;
     Eigen::Matrix2d A = Eigen::Matrix2d::Identity();
