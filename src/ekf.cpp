@@ -140,146 +140,360 @@ void Ekf::reorder(const std::vector<int>& order) {
   fixed_ = std::move(fx);
 }
 
+void UpdateStats::reset(int nblocks) {
+  blocks = nblocks;
+  used = gated = 0;
+  innovation_rms = nis = 0.0;
+  nis_dof = 0;
+  health = kHealthy;
+  applied = false;
+  form_used = UpdateForm::Covariance;
+  gated_mask.assign(nblocks, 0);
+}
+
+namespace {
+/// Storage growth of the work space: 25 % headroom, so a slowly growing frame does not
+/// reallocate every time.
+Eigen::Index grown(Eigen::Index need, Eigen::Index have) { return need <= have ? have : need + need / 4; }
+constexpr int kMaxBlockDim = 6;  // the patch model's 6-row blocks are the largest
+}  // namespace
+
+void BlockBatch::reserve(int max_blocks, int bd, int shared_cols, int own_cols) {
+  block_dim = bd;
+  shared = shared_cols;
+  own = own_cols;
+  blocks = 0;
+  const Eigen::Index rows = static_cast<Eigen::Index>(max_blocks) * bd, w = shared_cols + own_cols;
+  if (residual.size() < rows) residual.resize(grown(rows, residual.size()));
+  if (J.rows() < rows || J.cols() != w) J.resize(grown(rows, J.rows()), w);
+  if (cols.rows() < max_blocks || cols.cols() != own_cols) cols.resize(grown(max_blocks, cols.rows()), own_cols);
+  if (R.rows() < rows || R.cols() != bd) R.resize(grown(rows, R.rows()), bd);
+}
+
+void BlockBatch::shiftResidual(const Eigen::VectorXd& dx) {
+  for (int b = 0; b < blocks; ++b) {
+    auto rb = residual.segment(b * block_dim, block_dim);
+    rb.noalias() += J.block(b * block_dim, 0, block_dim, shared) * dx.head(shared);
+    for (int j = 0; j < own; ++j) rb += J.block(b * block_dim, shared + j, block_dim, 1) * dx[cols(b, j)];
+  }
+}
+
+MeasurementBatch BlockBatch::dense(int n) const {
+  MeasurementBatch d;
+  d.resize(blocks, n, block_dim);
+  const int m = rows();
+  d.residual = residual.head(m);
+  d.R = R.topRows(m);
+  d.H.leftCols(shared) = J.topLeftCorner(m, shared);
+  for (int b = 0; b < blocks; ++b)
+    for (int j = 0; j < own; ++j)
+      d.H.block(b * block_dim, cols(b, j), block_dim, 1) += J.block(b * block_dim, shared + j, block_dim, 1);
+  return d;
+}
+
+BlockBatch BlockBatch::fromDense(const MeasurementBatch& d) {
+  BlockBatch b;
+  b.block_dim = d.block_dim;
+  b.shared = static_cast<int>(d.H.cols());
+  b.own = 0;
+  b.blocks = d.blocks();
+  b.residual = d.residual;
+  b.J = d.H;
+  b.cols.resize(b.blocks, 0);
+  b.R = d.R;
+  return b;
+}
+
 UpdateStats Ekf::update(const MeasurementBatch& batch, const UpdateOptions& opt) {
-  UpdateStats st;
   const int bd = batch.block_dim;
   const int nb = batch.blocks();
-  st.blocks = nb;
-  st.gated_mask.assign(nb, 0);
   if (bd <= 0 || batch.residual.size() != nb * bd || batch.H.rows() != nb * bd ||
       batch.H.cols() != size() || batch.R.rows() != nb * bd || batch.R.cols() != bd)
     throw std::invalid_argument("Ekf::update: measurement batch has inconsistent sizes");
-  if (!batch.residual.allFinite() || !batch.H.allFinite() || !batch.R.allFinite()) {
-    st.health |= kNonFiniteInput;
-    return st;
-  }
-  const auto f = freeIndices();
-  const int nf = static_cast<int>(f.size());
-  const Eigen::MatrixXd Pf = P_(f, f);
-  const Eigen::MatrixXd Hf = batch.H(Eigen::all, f);
+  UpdateStats st;
+  update(BlockBatch::fromDense(batch), opt, &st);
+  return st;
+}
 
-  // Per-block gating: S_b = H_b P H_b^T + R_b.
-  const bool gating = opt.gate_probability > 0.0 && opt.gate_probability < 1.0;
-  const double gate = gating ? chi2Quantile(opt.gate_probability, bd) : 0.0;
-  const Eigen::MatrixXd PHt = Pf * Hf.transpose();  // nf x m
-  std::vector<int> used;
-  used.reserve(nb);
-  for (int b = 0; b < nb; ++b) {
-    const Eigen::MatrixXd Rb = batch.R.middleRows(b * bd, bd);
-    Eigen::LDLT<Eigen::MatrixXd> rl(Rb);
-    if (rl.info() != Eigen::Success || !rl.isPositive() || rl.vectorD().minCoeff() <= 0.0) {
-      st.health |= kBadMeasurementCovariance;
-      return st;
+bool Ekf::factorPrior(UpdateStats* st) {
+  const int n = size();
+  Work& w = w_;
+  w.free.clear();
+  for (int i = 0; i < n; ++i)
+    if (!fixed_[i]) w.free.push_back(i);
+  const int nf = static_cast<int>(w.free.size());
+  const bool all_free = nf == n;
+  // (Explicit loops: an indexed view would copy the index vector, a heap allocation.)
+  if (all_free) {
+    w.Pf = P_;
+  } else {
+    w.Pf.resize(nf, nf);
+    for (int j = 0; j < nf; ++j)
+      for (int i = 0; i < nf; ++i) w.Pf(i, j) = P_(w.free[i], w.free[j]);
+  }
+  // The prior must be symmetric positive semi-definite up to round-off.
+  const double scale = std::max(1e-300, nf > 0 ? w.Pf.cwiseAbs().maxCoeff() : 0.0);
+  if (nf > 0 && (w.Pf - w.Pf.transpose()).cwiseAbs().maxCoeff() > 1e-9 * scale) {
+    st->health |= kCovarianceNotPD;
+    return false;
+  }
+  // P_f = G G^T: Cholesky when P_f is positive definite (the usual case), else the pivoted LDLT,
+  // whose pivots within round-off of zero are taken as zero (zero-variance directions allowed).
+  w.llt.compute(w.Pf);
+  if (w.llt.info() == Eigen::Success) {
+    w.G = w.llt.matrixL();
+  } else {
+    w.ldlt.compute(w.Pf);
+    const Eigen::VectorXd D = w.ldlt.vectorD();
+    const double dmax = std::max(D.cwiseAbs().maxCoeff(), 1e-300);
+    if (w.ldlt.info() != Eigen::Success || D.minCoeff() < -1e-9 * dmax) {
+      st->health |= kCovarianceNotPD;
+      return false;
     }
+    const Eigen::MatrixXd L = w.ldlt.matrixL();
+    w.G = w.ldlt.transpositionsP().transpose() * (L * D.cwiseMax(0.0).cwiseSqrt().asDiagonal());
+  }
+  if (all_free) {
+    w.Gx = w.G;
+  } else {
+    w.Gx.setZero(n, nf);
+    for (int k = 0; k < nf; ++k) w.Gx.row(w.free[k]) = w.G.row(k);
+  }
+  return true;
+}
+
+namespace {
+/// A non-finite residual, Jacobian or R: the update is skipped (statistics as if nothing was tried).
+bool nonFinite(UpdateStats* st) {
+  st->reset(st->blocks);
+  st->health |= kNonFiniteInput;
+  return false;
+}
+}  // namespace
+
+// Gating and whitening, block by block, on the factored prior (P_f = G G^T). With L_b L_b^T = R_b,
+// block b's whitened rows are A_b = L_b^-1 H_b G and e_b = L_b^-1 r_b, and its innovation
+// covariance in whitened units is S_b = A_b A_b^T + I, so the gate distance is
+// d^2 = e_b^T S_b^-1 e_b = r_b^T (H_b P H_b^T + R_b)^-1 r_b (the same as before issue 15). The
+// accepted blocks are packed to the front of A and e.
+template <int BD>
+bool Ekf::gateAndWhiten(const BlockBatch& batch, const UpdateOptions& opt, UpdateStats* st) {
+  using Mat = Eigen::Matrix<double, BD, BD, 0, (BD > 0 ? BD : kMaxBlockDim), (BD > 0 ? BD : kMaxBlockDim)>;
+  using Vec = Eigen::Matrix<double, BD, 1, 0, (BD > 0 ? BD : kMaxBlockDim), 1>;
+  Work& w = w_;
+  const int bd = batch.block_dim, nb = batch.blocks, m = batch.rows();
+  const int nf = static_cast<int>(w.G.rows());
+  if (w.A.rows() < m || w.A.cols() != nf) w.A.resize(grown(m, w.A.rows()), nf);
+  if (w.e.size() < m) w.e.resize(grown(m, w.e.size()));
+  // A = H G. When every block has the same own columns (one plane), one product with the
+  // gathered rows of G; otherwise the shared columns in one product, then each block's own.
+  auto Am = w.A.topRows(m);
+  bool uniform = true;
+  for (int b = 1; b < nb && uniform && batch.own > 0; ++b) uniform = batch.cols.row(b) == batch.cols.row(0);
+  // Two-row blocks that all have R_b = s^2 I (the models' R without reference inflation) are
+  // whitened by scaling G once: A = H (G / s).
+  double iso = 0.0;
+  if (BD == 2 && uniform && nb > 0) {
+    iso = batch.R(0, 0);
+    for (int b = 0; b < nb && iso > 0.0; ++b)
+      if (batch.R(2 * b, 0) != iso || batch.R(2 * b + 1, 1) != iso || batch.R(2 * b, 1) != 0.0 || batch.R(2 * b + 1, 0) != 0.0)
+        iso = 0.0;
+    if (!(iso > 0.0 && std::isfinite(iso))) iso = 0.0;
+  }
+  const double inv_s = iso > 0.0 ? 1.0 / std::sqrt(iso) : 1.0;
+  if (uniform && nb > 0) {
+    // The block's columns; trailing fixed ones (zero rows of Gx, the gauge) are left out.
+    int wz = batch.width();
+    auto column = [&](int j) { return j < batch.shared ? j : batch.cols(0, j - batch.shared); };
+    while (wz > 0 && fixed_[column(wz - 1)]) --wz;
+    w.Gc.resize(wz, nf);
+    for (int j = 0; j < wz; ++j) w.Gc.row(j) = w.Gx.row(column(j)) * inv_s;
+    Am.noalias() = batch.J.topLeftCorner(m, wz) * w.Gc;
+  } else {
+    if (batch.shared > 0)
+      Am.noalias() = batch.J.topLeftCorner(m, batch.shared) * w.Gx.topRows(batch.shared);
+    else
+      Am.setZero();
+    for (int b = 0; b < nb; ++b)
+      for (int r = 0; r < bd; ++r)
+        for (int j = 0; j < batch.own; ++j)
+          w.A.row(b * bd + r) += batch.J(b * bd + r, batch.shared + j) * w.Gx.row(batch.cols(b, j));
+  }
+  const bool gating = opt.gate_probability > 0.0 && opt.gate_probability < 1.0;
+  if (gating && (w.gate_probability != opt.gate_probability || w.gate_dim != bd)) {
+    w.gate = chi2Quantile(opt.gate_probability, bd);
+    w.gate_probability = opt.gate_probability;
+    w.gate_dim = bd;
+  }
+  w.used.clear();
+  double ss = 0.0;
+  int k = 0;
+  for (int b = 0; b < nb; ++b) {
+    if constexpr (BD == 2) {
+      // Two rows (the point models): Cholesky of R_b, whitening and the gate written out.
+      const double r00 = batch.R(2 * b, 0), r01 = batch.R(2 * b, 1), r10 = batch.R(2 * b + 1, 0),
+                   r11 = batch.R(2 * b + 1, 1);
+      const double r0 = batch.residual[2 * b], r1 = batch.residual[2 * b + 1];
+      if (!std::isfinite(r00 + r01 + r10 + r11 + r0 + r1)) return nonFinite(st);
+      auto a0 = w.A.row(2 * b), a1 = w.A.row(2 * b + 1);
+      double e0, e1;
+      if (iso > 0.0) {  // already whitened through G
+        e0 = r0 * inv_s;
+        e1 = r1 * inv_s;
+      } else {
+        const double l00 = std::sqrt(r00), l10 = r10 / l00, d11 = r11 - l10 * l10;
+        if (!(r00 > 0.0) || !(d11 > 0.0)) {
+          st->health |= kBadMeasurementCovariance;
+          return false;
+        }
+        const double l11 = std::sqrt(d11);
+        a0 *= 1.0 / l00;
+        a1 = (a1 - l10 * a0) * (1.0 / l11);
+        e0 = r0 / l00;
+        e1 = (r1 - l10 * e0) / l11;
+      }
+      // A non-finite Jacobian entry makes its row of A = H G non-finite (Inf * 0 is NaN), so the
+      // squared norms check the input (no separate pass over J).
+      const double s00 = 1.0 + a0.squaredNorm(), s11 = 1.0 + a1.squaredNorm();
+      if (!std::isfinite(s00 + s11)) return nonFinite(st);
+      if (gating) {
+        const double s01 = a0.dot(a1);
+        const double d2 = (s11 * e0 * e0 - 2.0 * s01 * e0 * e1 + s00 * e1 * e1) / (s00 * s11 - s01 * s01);
+        if (!(d2 <= w.gate)) {
+          st->gated_mask[b] = 1;
+          ++st->gated;
+          continue;
+        }
+      }
+      if (k != b) w.A.middleRows<2>(2 * k) = w.A.middleRows<2>(2 * b);
+      w.e[2 * k] = e0;
+      w.e[2 * k + 1] = e1;
+      ss += r0 * r0 + r1 * r1;
+      w.used.push_back(b);
+      ++k;
+      continue;
+    }
+    const Mat Rb = batch.R.block(b * bd, 0, bd, bd);
+    if (!Rb.allFinite() || !batch.residual.segment(b * bd, bd).allFinite() || !w.A.middleRows(b * bd, bd).allFinite())
+      return nonFinite(st);
+    const Eigen::LLT<Mat> rl(Rb);
+    if (rl.info() != Eigen::Success) {
+      st->health |= kBadMeasurementCovariance;
+      return false;
+    }
+    const Vec rb = batch.residual.segment(b * bd, bd);
+    auto Ab = w.A.middleRows(b * bd, bd);
+    rl.matrixL().solveInPlace(Ab);
+    const Vec eb = rl.matrixL().solve(rb);
     if (gating) {
-      const Eigen::MatrixXd Sb = Hf.middleRows(b * bd, bd) * PHt.middleCols(b * bd, bd) + Rb;
-      Eigen::LDLT<Eigen::MatrixXd> sl(Sb);
-      const Eigen::VectorXd rb = batch.residual.segment(b * bd, bd);
-      const double d2 = sl.info() == Eigen::Success ? rb.dot(sl.solve(rb)) : HUGE_VAL;
-      if (!(d2 <= gate)) {
-        st.gated_mask[b] = 1;
-        ++st.gated;
+      Mat S = Mat::Identity(bd, bd);
+      S.noalias() += Ab * Ab.transpose();
+      double d2;
+      {
+        const Eigen::LLT<Mat> sl(S);
+        d2 = sl.info() == Eigen::Success ? eb.dot(sl.solve(eb)) : HUGE_VAL;
+      }
+      if (!(d2 <= w.gate)) {
+        st->gated_mask[b] = 1;
+        ++st->gated;
         continue;
       }
     }
-    used.push_back(b);
+    if (k != b) w.A.middleRows(k * bd, bd) = w.A.middleRows(b * bd, bd);
+    w.e.segment(k * bd, bd) = eb;
+    ss += rb.squaredNorm();
+    w.used.push_back(b);
+    ++k;
   }
-  st.used = static_cast<int>(used.size());
-  st.nis_dof = st.used * bd;
-  if (st.used < std::max(1, opt.min_blocks)) {
-    st.health |= kTooFewMeasurements;
-    return st;
+  st->used = k;
+  st->nis_dof = k * bd;
+  if (k < std::max(1, opt.min_blocks)) {
+    st->health |= kTooFewMeasurements;
+    return false;
   }
-  const int m = st.used * bd;
-  {
-    double ss = 0.0;
-    for (int b : used) ss += batch.residual.segment(b * bd, bd).squaredNorm();
-    st.innovation_rms = std::sqrt(ss / m);
-  }
+  st->innovation_rms = std::sqrt(ss / (k * bd));
+  return true;
+}
 
+void Ekf::update(const BlockBatch& batch, const UpdateOptions& opt, UpdateStats* st) {
+  const int bd = batch.block_dim, nb = batch.blocks, m = batch.rows(), n = size();
+  st->reset(nb);
+  if (bd <= 0 || bd > kMaxBlockDim || nb < 0 || batch.shared < 0 || batch.shared > n || batch.own < 0 ||
+      batch.residual.size() < m || batch.J.rows() < m || batch.J.cols() != batch.width() ||
+      batch.cols.rows() < (batch.own > 0 ? nb : 0) || batch.cols.cols() != batch.own || batch.R.rows() < m ||
+      batch.R.cols() != bd)
+    throw std::invalid_argument("Ekf::update: measurement batch has inconsistent sizes");
+  for (int b = 0; b < nb; ++b)
+    for (int j = 0; j < batch.own; ++j)
+      if (batch.cols(b, j) < 0 || batch.cols(b, j) >= n)
+        throw std::invalid_argument("Ekf::update: measurement batch has a column outside the state");
+  // Non-finite residuals, Jacobians or covariances are detected block by block in gateAndWhiten.
+  if (!factorPrior(st)) return;
+  const bool ok = bd == 2 ? gateAndWhiten<2>(batch, opt, st)
+                          : bd == 6 ? gateAndWhiten<6>(batch, opt, st) : gateAndWhiten<Eigen::Dynamic>(batch, opt, st);
+  if (!ok) return;
+  Work& w = w_;
+  const int nf = static_cast<int>(w.G.rows());
+  const int mu = st->used * bd;
+  const auto W = w.A.topRows(mu);
+  const auto e = w.e.head(mu);
   UpdateForm form = opt.form;
-  if (form == UpdateForm::Auto) form = m > nf ? UpdateForm::Information : UpdateForm::Covariance;
-  st.form_used = form;
-
-  // The prior must be symmetric positive semi-definite (up to round-off); both forms use its
-  // pivoted LDLT: the information form as the factor G, the covariance form only as this check.
-  Eigen::LDLT<Eigen::MatrixXd> pl(Pf);
-  {
-    const Eigen::VectorXd D = pl.vectorD();
-    const double dmax = std::max(D.cwiseAbs().maxCoeff(), 1e-300);
-    const double scale = std::max(1e-300, Pf.cwiseAbs().maxCoeff());
-    if (pl.info() != Eigen::Success || D.minCoeff() < -1e-9 * dmax ||
-        (Pf - Pf.transpose()).cwiseAbs().maxCoeff() > 1e-9 * scale) {
-      st.health |= kCovarianceNotPD;
-      return st;
+  if (form == UpdateForm::Auto) form = mu > nf ? UpdateForm::Information : UpdateForm::Covariance;
+  st->form_used = form;
+  // In whitened units the measurements are e = W z + noise(I) with z = G^-1 (x - x^-) ~ N(0, I).
+  if (form == UpdateForm::Information) {
+    // M = I + W^T W (= I + G^T J G, J = sum_b H_b^T R_b^-1 H_b), M = L L^T;
+    // dx = G M^-1 W^T e; P+ = G M^-1 G^T = T^T T with T = L^-1 G^T (Woodbury: (P^-1 + J)^-1).
+    w.M.setIdentity(nf, nf);
+    w.M.selfadjointView<Eigen::Lower>().rankUpdate(W.transpose());
+    w.mllt.compute(w.M);
+    if (w.mllt.info() != Eigen::Success) {
+      st->health |= kSolveFailed;
+      return;
     }
-  }
-
-  Eigen::VectorXd dx;
-  Eigen::MatrixXd Pn;
-  if (form == UpdateForm::Covariance) {
-    Eigen::MatrixXd Hu(m, nf), Ru = Eigen::MatrixXd::Zero(m, m);
-    Eigen::VectorXd ru(m);
-    for (int k = 0; k < st.used; ++k) {
-      const int b = used[k];
-      Hu.middleRows(k * bd, bd) = Hf.middleRows(b * bd, bd);
-      ru.segment(k * bd, bd) = batch.residual.segment(b * bd, bd);
-      Ru.block(k * bd, k * bd, bd, bd) = batch.R.middleRows(b * bd, bd);
-    }
-    const Eigen::MatrixXd PH = Pf * Hu.transpose();  // nf x m
-    Eigen::MatrixXd S = Hu * PH + Ru;
-    S = 0.5 * (S + S.transpose()).eval();
-    Eigen::LDLT<Eigen::MatrixXd> sl(S);
-    if (sl.info() != Eigen::Success || !sl.isPositive()) {
-      st.health |= kSolveFailed;
-      return st;
-    }
-    const Eigen::MatrixXd K = sl.solve(PH.transpose()).transpose();  // nf x m
-    dx = K * ru;
-    st.nis = ru.dot(sl.solve(ru));
-    const Eigen::MatrixXd IKH = Eigen::MatrixXd::Identity(nf, nf) - K * Hu;
-    Pn = IKH * Pf * IKH.transpose() + K * Ru * K.transpose();
+    w.g.noalias() = W.transpose() * e;
+    w.y = w.g;
+    w.mllt.solveInPlace(w.y);
+    w.dx.noalias() = w.G * w.y;
+    w.T = w.G.transpose();
+    w.mllt.matrixL().solveInPlace(w.T);
+    w.Pn.setZero(nf, nf);
+    w.Pn.selfadjointView<Eigen::Lower>().rankUpdate(w.T.transpose());
+    st->nis = e.squaredNorm() - w.g.dot(w.y);
   } else {
-    // Information form accumulated block by block: O(m n^2).
-    Eigen::MatrixXd J = Eigen::MatrixXd::Zero(nf, nf);
-    Eigen::VectorXd g = Eigen::VectorXd::Zero(nf);
-    double c = 0.0;
-    for (int b : used) {
-      const Eigen::MatrixXd Rb = batch.R.middleRows(b * bd, bd);
-      Eigen::LDLT<Eigen::MatrixXd> rl(Rb);
-      const auto Hb = Hf.middleRows(b * bd, bd);
-      const Eigen::VectorXd rb = batch.residual.segment(b * bd, bd);
-      const Eigen::MatrixXd RiH = rl.solve(Hb);  // bd x nf
-      J.noalias() += Hb.transpose() * RiH;
-      const Eigen::VectorXd Rir = rl.solve(rb);
-      g.noalias() += Hb.transpose() * Rir;
-      c += rb.dot(Rir);
+    // Covariance form in whitened units: S = W W^T + I, K' = W^T S^-1, dx = G K' e, and the
+    // Joseph form P+ = G [(I - K'W)(I - K'W)^T + K'K'^T] G^T. Cost O(m^3): used when m <= nf.
+    const Eigen::MatrixXd S = W * W.transpose() + Eigen::MatrixXd::Identity(mu, mu);
+    const Eigen::LDLT<Eigen::MatrixXd> sl(S);
+    if (sl.info() != Eigen::Success || !sl.isPositive()) {
+      st->health |= kSolveFailed;
+      return;
     }
-    // P = G G^T from the pivoted LDLT (zero-variance directions allowed; pivots within
-    // round-off of zero were accepted above and are taken as zero).
-    const Eigen::VectorXd D = pl.vectorD().cwiseMax(0.0);
-    Eigen::MatrixXd L = pl.matrixL();
-    Eigen::MatrixXd G = pl.transpositionsP().transpose() * (L * D.cwiseSqrt().asDiagonal());
-    Eigen::MatrixXd M = Eigen::MatrixXd::Identity(nf, nf) + G.transpose() * J * G;
-    M = 0.5 * (M + M.transpose()).eval();
-    Eigen::LDLT<Eigen::MatrixXd> ml(M);
-    if (ml.info() != Eigen::Success || !ml.isPositive()) {
-      st.health |= kSolveFailed;
-      return st;
+    const Eigen::MatrixXd K = sl.solve(Eigen::MatrixXd(W)).transpose();  // nf x mu
+    w.dx = w.G * (K * e);
+    st->nis = e.dot(sl.solve(Eigen::VectorXd(e)));
+    const Eigen::MatrixXd IKW = Eigen::MatrixXd::Identity(nf, nf) - K * W;
+    const Eigen::MatrixXd C = IKW * IKW.transpose() + K * K.transpose();
+    w.Pn = w.G * C * w.G.transpose();
+    w.Pn = (0.5 * (w.Pn + w.Pn.transpose())).eval();
+  }
+  if (form == UpdateForm::Information)  // rankUpdate filled the lower half
+    for (int j = 0; j < nf; ++j)
+      for (int i = 0; i < j; ++i) w.Pn(i, j) = w.Pn(j, i);
+  if (!w.dx.allFinite() || !w.Pn.allFinite()) {
+    st->health |= kNonFiniteState;
+    return;  // prior kept
+  }
+  if (nf == n) {
+    x_ += w.dx;
+    P_ = w.Pn;
+  } else {
+    for (int j = 0; j < nf; ++j) {
+      x_[w.free[j]] += w.dx[j];
+      for (int i = 0; i < nf; ++i) P_(w.free[i], w.free[j]) = w.Pn(i, j);
     }
-    Pn = G * ml.solve(G.transpose());
-    dx = Pn * g;
-    st.nis = c - g.dot(dx);
   }
-  Pn = 0.5 * (Pn + Pn.transpose()).eval();
-  if (!dx.allFinite() || !Pn.allFinite()) {
-    st.health |= kNonFiniteState;
-    return st;  // prior kept
-  }
-  x_(f) += dx;
-  P_(f, f) = Pn;
-  st.applied = true;
-  return st;
+  st->applied = true;
 }
 
 int iteratedUpdate(Ekf* ekf, int iterations, double tol, int halvings, const Eigen::VectorXd& x_prior,

@@ -52,7 +52,7 @@ NoiselessResult runNoiselessPlane(RotationReading reading, int iterations = 1) {
   for (int k = 1; k <= so.frames; ++k) {
     std::vector<Observation> obs;
     for (int i = 0; i < Np; ++i) obs.push_back({i, scene.uv[k][i]});
-    const FrameStats fs = f.step(obs);
+    const FrameStats& fs = f.step(obs);
     EXPECT_EQ(fs.health, kHealthy) << "frame " << k;
   }
   NoiselessResult r;
@@ -80,7 +80,7 @@ TEST(PlaneFilter, IterationScheduleWarmUpThenPlainThenIterated) {
   for (int k = 1; k <= 10; ++k) {
     std::vector<Observation> obs;
     for (int i = 0; i < Np; ++i) obs.push_back({i, scene.uv[k][i]});
-    const FrameStats fs = f.step(obs);
+    const FrameStats& fs = f.step(obs);
     ASSERT_EQ(fs.health, kHealthy) << "frame " << k;
     if (k <= 2 || k > 6)
       EXPECT_GT(fs.iterations, 1) << "frame " << k;
@@ -115,7 +115,7 @@ TEST(PlaneFilter, BetaBoundProjectsTheEstimateOntoTheBound) {
     for (int k = 1; k <= 30; ++k) {
       std::vector<Observation> obs;
       for (int i = 0; i < Np; ++i) obs.push_back({i, scene.uv[k][i]});
-      const FrameStats fs = f.step(obs);
+      const FrameStats& fs = f.step(obs);
       EXPECT_EQ(fs.health, kHealthy) << "frame " << k;
       *min_beta = std::min(*min_beta, f.beta());
       if (fs.beta_projected) {
@@ -180,7 +180,7 @@ TEST(PlaneFilter, UnknownFeatureIdIsReported) {
   for (int i = 0; i < 6; ++i) obs.push_back({i, ref[i]});
   obs.push_back({17, {0.0, 0.0}});
   obs.push_back({-1, {0.0, 0.0}});
-  const FrameStats fs = f.step(obs);
+  const FrameStats& fs = f.step(obs);
   EXPECT_EQ(fs.invalid, 2);
   EXPECT_EQ(fs.first_problem, MeasureStatus::UnknownFeature);
   EXPECT_TRUE(fs.update.applied);
@@ -339,7 +339,7 @@ Consistency consistencyRuns(int runs, int frames, int points, bool plane_model) 
         if (model.measure(xt, Rt, i, &h, nullptr) != MeasureStatus::Ok) continue;
         obs.push_back({i, h + sigma * Eigen::Vector2d(N01(rng), N01(rng))});
       }
-      const FrameStats fs = f.step(obs);
+      const FrameStats& fs = f.step(obs);
       ok = fs.health == kHealthy && fs.update.applied;
       if (ok) {
         nis_sum += fs.update.nis;
@@ -396,7 +396,7 @@ TEST(PlaneFilter, HorizonIsReportedNotDividedByZero) {
   RecursiveFilter<PlaneModel> f(PlaneModel(ref, std::vector<int>(ref.size(), 0)), Ekf(x0, P0, fixed), FilterOptions{});
   std::vector<Observation> obs;
   for (int i = 0; i < static_cast<int>(ref.size()); ++i) obs.push_back({i, ref[i]});
-  const FrameStats fs = f.step(obs);
+  const FrameStats& fs = f.step(obs);
   EXPECT_GE(fs.invalid, 1);
   EXPECT_TRUE(fs.first_problem == MeasureStatus::HorizonSingular ||
               fs.first_problem == MeasureStatus::BehindCamera);
@@ -415,7 +415,7 @@ TEST(PlaneFilter, TooFewPointsIsReported) {
                                 Ekf(x0, Eigen::MatrixXd::Identity(10, 10) * 0.01, fixed), FilterOptions{});
   std::vector<Observation> obs;
   for (int i = 0; i < 4; ++i) obs.push_back({i, ref[i]});
-  const FrameStats fs = f.step(obs);
+  const FrameStats& fs = f.step(obs);
   EXPECT_FALSE(fs.update.applied);
   EXPECT_TRUE(fs.update.health & kTooFewMeasurements);
 }

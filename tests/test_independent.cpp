@@ -90,7 +90,7 @@ ObjectErrors runTwoObjects(double px, std::uint64_t seed) {
     std::vector<Observation> obs;
     for (size_t i = 0; i < s.points.size(); ++i)
       obs.push_back({static_cast<int>(i), s.uv[k][i] + sigma * Eigen::Vector2d(N01(rng), N01(rng))});
-    const FrameStats fs = f.step(obs);
+    const FrameStats& fs = f.step(obs);
     EXPECT_EQ(fs.health, kHealthy) << "frame " << k;
     EXPECT_TRUE(fs.update.applied) << "frame " << k;
   }

@@ -6,21 +6,29 @@
 // - Updates take a batch of measurement blocks (2 rows per tracked point, 6 per affine patch),
 //   already linearized at the current state: residual r = z - h(x), Jacobian H, and a
 //   block-diagonal measurement covariance R.
-// - Two algebraically equivalent update forms:
-//     Covariance form: S = H P H^T + R solved by LDLT, K = P H^T S^-1, Joseph-form covariance
-//       P+ = (I-KH) P (I-KH)^T + K R K^T, then symmetrized. Cost O(m^3) in the measurement count m.
-//     Information form: J = sum_b H_b^T R_b^-1 H_b, g = sum_b H_b^T R_b^-1 r_b accumulated block by
-//       block (O(m n^2)), then with a factor P = G G^T (pivoted LDLT of P, so zero-variance
-//       directions are allowed) and the Woodbury identity P+ = G (I + G^T J G)^-1 G^T
-//       = (P^-1 + J)^-1, dx = P+ g. Cost O(m) for a fixed state size n: this is what makes the
-//       plane models O(N) per frame. The factored form keeps P+ positive semi-definite by
+// - The update factors the prior's free part, P = G G^T (Cholesky; the pivoted LDLT when P is
+//   only semi-definite), and works in whitened units: block b's rows become A_b = L_b^-1 H_b G
+//   and e_b = L_b^-1 r_b with L_b L_b^T = R_b, so its innovation covariance is A_b A_b^T + I.
+//   Two algebraically equivalent forms follow:
+//     Information form: M = I + sum_b A_b^T A_b (= I + G^T J G, J = sum_b H_b^T R_b^-1 H_b; one
+//       symmetric rank-m update), M = L L^T, dx = G M^-1 A^T e, P+ = G M^-1 G^T = T^T T with
+//       T = L^-1 G^T (Woodbury: (P^-1 + J)^-1). Cost O(m n^2) for the blocks, O(n^3) once: this
+//       is what makes the plane models O(N) per frame. P+ is positive semi-definite by
 //       construction (the role Joseph plays in the other form).
+//     Covariance form: S = A A^T + I, K' = A^T S^-1, dx = G K' e, and the Joseph form in factor
+//       coordinates P+ = G [(I - K'A)(I - K'A)^T + K'K'^T] G^T. Cost O(m^3).
+//   The models' Jacobians are compact (BlockBatch: the 7 motion columns shared by all blocks,
+//   then each block's own structure columns), so A = H G costs O(m n) per frame, not O(m n^2).
+//   Once the filter has seen its largest frame, an information-form update allocates nothing
+//   (the work space lives in the Ekf; issue 15, tests/test_allocations.cpp).
 // - Both forms check the prior (free part) first: a negative LDLT pivot beyond round-off skips
 //   the update with kCovarianceNotPD (never clamped silently).
 // - Components marked fixed (the scale gauge: zero variance, zero process noise) are excluded
 //   from every update and prediction, so they never move and keep zero variance.
 // - Each block is chi-square gated on its own innovation (d^2 = r_b^T S_b^-1 r_b against the
-//   gate_probability quantile of chi2(block_dim)); gated blocks do not enter the update.
+//   gate_probability quantile of chi2(block_dim)), computed from the same whitened A_b:
+//   S_b = A_b A_b^T + I in whitened units; gated blocks do not enter the update.
+#include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <cstdint>
 #include <functional>
@@ -38,6 +46,39 @@ struct MeasurementBatch {
   int blocks() const { return block_dim > 0 ? static_cast<int>(residual.size()) / block_dim : 0; }
   /// Allocates for `nblocks` blocks over a state of size n (zero-filled).
   void resize(int nblocks, int n, int bd);
+};
+
+using RowMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using RowMatrixXi = Eigen::Matrix<int, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+/// A batch of measurement blocks with compact Jacobians: the form the point-based models fill
+/// (a point's rows depend on the 7 motion columns and on its own structure columns only), and the
+/// one the update works on. Block b has rows [b bd, (b+1) bd) of `residual`, `J` and `R`; its
+/// Jacobian with respect to the state is zero except for
+///   columns 0 .. shared-1             = J(rows, 0 .. shared-1)          (common to every block),
+///   column cols(b, j), j < own        = J(rows, shared + j)             (the block's own columns).
+/// A dense batch is the case shared = n, own = 0. The storage only grows (reserve()), so a filter
+/// that keeps one BlockBatch allocates nothing once it has seen its largest frame (issue 15).
+struct BlockBatch {
+  int block_dim = 2;  ///< rows per block
+  int shared = 0;     ///< leading state columns every block depends on
+  int own = 0;        ///< further columns per block (cols)
+  int blocks = 0;     ///< blocks in use
+  Eigen::VectorXd residual;  ///< z - h(x); entries [0, rows()) in use
+  RowMatrixXd J;             ///< rows() x (shared + own) in use
+  RowMatrixXi cols;          ///< blocks x own in use: the state column of each own Jacobian column
+  RowMatrixXd R;             ///< rows() x block_dim in use: block b's covariance
+  int rows() const { return blocks * block_dim; }
+  int width() const { return shared + own; }
+  /// Makes room for `max_blocks` blocks of this layout and sets blocks = 0. Storage never shrinks.
+  void reserve(int max_blocks, int bd, int shared_cols, int own_cols);
+  /// residual += (dh/dx) dx over the blocks in use (the iterated update's shift of a relinearized
+  /// batch, recursive_filter.hpp).
+  void shiftResidual(const Eigen::VectorXd& dx);
+  /// The same blocks with a dense m x n Jacobian (tests, dense callers).
+  MeasurementBatch dense(int n) const;
+  /// A dense batch in this layout (shared = n, own = 0).
+  static BlockBatch fromDense(const MeasurementBatch& b);
 };
 
 enum class UpdateForm {
@@ -82,6 +123,8 @@ struct UpdateStats {
   bool applied = false;          ///< the state and covariance were changed
   UpdateForm form_used = UpdateForm::Covariance;
   std::vector<std::uint8_t> gated_mask;  ///< per block: 1 = gated
+  /// Back to the defaults with `blocks` blocks, none gated (gated_mask keeps its storage).
+  void reset(int blocks);
 };
 
 class Ekf {
@@ -105,6 +148,9 @@ class Ekf {
   void predict(const Eigen::MatrixXd& F, const Eigen::MatrixXd& Q);
 
   UpdateStats update(const MeasurementBatch& batch, const UpdateOptions& options = {});
+  /// The update itself (both forms): no heap allocation once the filter has seen its largest
+  /// frame (the work space is kept in the Ekf), except in the covariance form (m <= free states).
+  void update(const BlockBatch& batch, const UpdateOptions& options, UpdateStats* stats);
 
   /// Appends components (new structure) with the given mean, covariance block and cross-covariance
   /// with the existing state (rows: new components).
@@ -126,9 +172,34 @@ class Ekf {
   std::uint32_t health() const;
 
  private:
+  /// Factors the free part of P (P_f = G G^T) into the work space; false (stats->health set) when
+  /// P_f is not symmetric positive semi-definite.
+  bool factorPrior(UpdateStats* stats);
+  template <int BD>
+  bool gateAndWhiten(const BlockBatch& batch, const UpdateOptions& opt, UpdateStats* stats);
+
   Eigen::VectorXd x_;
   Eigen::MatrixXd P_;
   std::vector<bool> fixed_;
+  /// Update work space (sizes follow the state and the largest batch seen; never shrinks).
+  struct Work {
+    std::vector<int> free;       ///< free component indices
+    Eigen::MatrixXd Pf;          ///< P's free part
+    Eigen::LLT<Eigen::MatrixXd> llt;
+    Eigen::LDLT<Eigen::MatrixXd> ldlt;  ///< fallback when Pf is only semi-definite
+    Eigen::MatrixXd G;           ///< Pf = G G^T (nf x nf)
+    RowMatrixXd Gx;              ///< G with a zero row for each fixed component (n x nf)
+    RowMatrixXd Gc;              ///< Gx's rows of the batch's columns (blocks with the same columns)
+    RowMatrixXd A;               ///< per block: L_b^-1 H_b G (whitened; accepted blocks first)
+    Eigen::VectorXd e;           ///< per block: L_b^-1 r_b (accepted blocks first)
+    std::vector<int> used;       ///< accepted blocks
+    Eigen::MatrixXd M;           ///< I + A^T A (information form)
+    Eigen::LLT<Eigen::MatrixXd> mllt;
+    Eigen::VectorXd g, y, dx;
+    Eigen::MatrixXd T, Pn;
+    double gate = 0.0, gate_probability = -1.0;  ///< chi-square gate, cached per (probability, block size)
+    int gate_dim = 0;
+  } w_;
 };
 
 /// Iterated EKF update with backtracking, shared by the filters' `iterations` option: Gauss-Newton

@@ -153,7 +153,7 @@ Run runPointFilter(const PatchesOptions& o, const TrialData& td, bool plane_scen
   std::vector<Observation> obs(K);
   for (int k = 1; k <= F; ++k) {
     for (int p = 0; p < K; ++p) obs[p] = {p, td.centre[k][p]};
-    const FrameStats fs = f.step(obs);
+    const FrameStats& fs = f.step(obs);
     if (fs.health != kHealthy) {
       r.failed = true;
       r.failure = "frame " + std::to_string(k) + ": " + describeHealth(fs.health);

@@ -107,7 +107,7 @@ bool runPlaneFilterOnce(const PlanesOptions& o, double beta0, const FilterOption
   std::vector<Observation> obs(ids.size());
   for (int k = 1; k <= F; ++k) {
     for (size_t i = 0; i < ids.size(); ++i) obs[i] = {static_cast<int>(i), uv[k][ids[i]]};
-    const FrameStats fs = f.step(obs);
+    const FrameStats& fs = f.step(obs);
     if (fs.health != kHealthy || !fs.update.applied) {
       *failure = "frame " + std::to_string(k) + ": " +
                  describeHealth(fs.health != kHealthy ? fs.health : fs.update.health);
@@ -299,7 +299,7 @@ TrialOut runTrial(const PlanesOptions& o, const BoxScene& scene, double noise_px
     std::vector<Observation> obs(Np);
     for (int k = 1; k <= F; ++k) {
       for (int i = 0; i < Np; ++i) obs[i] = {i, uv[k][i]};
-      const FrameStats fs = f.step(obs);
+      const FrameStats& fs = f.step(obs);
       if (fs.health != kHealthy || !fs.update.applied) {
         mt.failed = true;
         mt.failure = "frame " + std::to_string(k) + ": " + describeHealth(fs.health != kHealthy ? fs.health : fs.update.health);

@@ -94,7 +94,7 @@ void runFrames(RecursiveFilter<Model>& f, const std::vector<std::vector<Eigen::V
   std::vector<Observation> obs(Np);
   for (int k = 1; k <= F; ++k) {
     for (int i = 0; i < Np; ++i) obs[i] = {i, uv[k][i]};
-    const FrameStats fs = f.step(obs);
+    const FrameStats& fs = f.step(obs);
     tr->gated += fs.update.gated;
     tr->invalid += fs.invalid;
     if (fs.health != kHealthy || !fs.update.applied) {

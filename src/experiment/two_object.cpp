@@ -68,7 +68,7 @@ TrialOut runTrial(const TwoObjectOptions& o, const TwoObjectScene& s, double noi
   std::vector<Observation> obs(s.points.size());
   for (int k = 1; k <= F; ++k) {
     for (size_t i = 0; i < s.points.size(); ++i) obs[i] = {static_cast<int>(i), uv[k][i]};
-    const FrameStats fs = f.step(obs);
+    const FrameStats& fs = f.step(obs);
     if (fs.health != kHealthy || !fs.update.applied) {
       out.failed = true;
       out.failure = "frame " + std::to_string(k) + ": " +

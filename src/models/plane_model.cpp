@@ -26,16 +26,19 @@ int PlaneModel::addPoint(const Eigen::Vector2d& ref_uv, int plane) {
 MeasureStatus PlaneModel::checkRay(const Eigen::Vector3d& N, double beta,
                                    const Eigen::Vector2d& uv) {
   if (!N.allFinite() || !std::isfinite(beta) || !uv.allFinite()) return MeasureStatus::NonFinite;
-  if (!(N.norm() < kMaxPlaneNorm)) return MeasureStatus::PlaneThroughOrigin;
+  // Compared squared (no square root per point: this runs for every observation of every frame).
+  const double n2 = N.squaredNorm();
+  if (!(n2 < kMaxPlaneNorm * kMaxPlaneNorm)) return MeasureStatus::PlaneThroughOrigin;
   const double den = beta * (N.x() * uv.x() + N.y() * uv.y()) + N.z();  // N . d = 1 / eta
-  const double nd = N.norm() * std::sqrt(beta * beta * uv.squaredNorm() + 1.0);
-  if (!(std::abs(den) > kMinGrazingSine * nd)) return MeasureStatus::HorizonSingular;
+  const double nd2 = n2 * (beta * beta * uv.squaredNorm() + 1.0);        // (|N| |d|)^2
+  if (!(den * den > kMinGrazingSine * kMinGrazingSine * nd2)) return MeasureStatus::HorizonSingular;
   return MeasureStatus::Ok;
 }
 
 MeasureStatus PlaneModel::point(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv,
                                 Eigen::Vector3d* p, Eigen::Vector3d* dp_dbeta,
-                                Eigen::Matrix3d* dp_dN, Eigen::Matrix<double, 3, 2>* dp_duv) {
+                                Eigen::Matrix3d* dp_dN, Eigen::Matrix<double, 3, 2>* dp_duv,
+                                Eigen::Vector3d* dp_dN_coeff) {
   const MeasureStatus s = checkRay(N, beta, uv);
   if (s != MeasureStatus::Ok) return s;
   const double u = uv.x(), v = uv.y();
@@ -48,12 +51,9 @@ MeasureStatus PlaneModel::point(const Eigen::Vector3d& N, double beta, const Eig
   if (p) *p = pt;
   const double e2 = eta * eta;
   if (dp_dbeta) *dp_dbeta = e2 * g * Eigen::Vector3d(N.z() * u, N.z() * v, -a);
-  if (dp_dN) {
-    const Eigen::Vector3d ray(u * beta, v * beta, 1.0);
-    dp_dN->col(0) = -e2 * u * nb * ray;
-    dp_dN->col(1) = -e2 * v * nb * ray;
-    dp_dN->col(2) = -e2 * g * ray;
-  }
+  const Eigen::Vector3d c(-e2 * u * nb, -e2 * v * nb, -e2 * g);  // dp/dN = ray c^T
+  if (dp_dN_coeff) *dp_dN_coeff = c;
+  if (dp_dN) *dp_dN = Eigen::Vector3d(u * beta, v * beta, 1.0) * c.transpose();
   if (dp_duv) {
     // d eta/du = -beta N_X eta^2, d eta/dv = -beta N_Y eta^2.
     const double deu = -beta * N.x() * e2, dev = -beta * N.y() * e2;
@@ -67,15 +67,15 @@ MeasureStatus PlaneModel::measure(const MotionContext& m, const Eigen::VectorXd&
                                   Eigen::Vector2d* h, Eigen::Matrix<double, 2, 7>* Hm,
                                   Eigen::Matrix<double, 2, 3>* Hn, Eigen::Matrix2d* Hu) const {
   const Eigen::Vector3d N = x.segment<3>(planeIndex(labels_[i]));
-  Eigen::Vector3d p, dpb;
-  Eigen::Matrix3d dpN;
+  Eigen::Vector3d p, dpb, dpN_coeff;
   Eigen::Matrix<double, 3, 2> dpu;
-  MeasureStatus s = point(N, m.beta, ref_[i], &p, &dpb, &dpN, Hu ? &dpu : nullptr);
+  MeasureStatus s = point(N, m.beta, ref_[i], &p, &dpb, nullptr, Hu ? &dpu : nullptr, &dpN_coeff);
   if (s != MeasureStatus::Ok) return s;
   Eigen::Matrix<double, 2, 3> dhdp;
   s = projectWithJacobian(m, p, dpb, h, Hm, (Hn || Hu) ? &dhdp : nullptr);
   if (s != MeasureStatus::Ok) return s;
-  if (Hn) *Hn = dhdp * dpN;
+  // dp/dN = ray c^T (point()), so dh/dN = (dh/dp ray) c^T: a 2x1 times 1x3 product.
+  if (Hn) *Hn = (dhdp * Eigen::Vector3d(m.beta * ref_[i].x(), m.beta * ref_[i].y(), 1.0)) * dpN_coeff.transpose();
   if (Hu) *Hu = dhdp * dpu;
   return s;
 }
@@ -97,7 +97,7 @@ MeasureStatus PlaneModel::measure(const Eigen::VectorXd& x, const Eigen::Matrix3
 
 void PlaneModel::linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
                            const std::vector<Observation>& obs, double sigma,
-                           const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
+                           const std::vector<Eigen::Matrix2d>* ref_cov, BlockBatch* batch,
                            int* invalid, MeasureStatus* first_problem,
                            std::vector<int>* used, int reference_index) const {
   linearizeObservations(*this, x, Rg, obs, sigma, ref_cov, batch, invalid, first_problem, used, reference_index);

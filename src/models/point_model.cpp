@@ -47,7 +47,7 @@ MeasureStatus PointModel::measure(const Eigen::VectorXd& x, const Eigen::Matrix3
 
 void PointModel::linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
                            const std::vector<Observation>& obs, double sigma,
-                           const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
+                           const std::vector<Eigen::Matrix2d>* ref_cov, BlockBatch* batch,
                            int* invalid, MeasureStatus* first_problem,
                            std::vector<int>* used, int reference_index) const {
   linearizeObservations(*this, x, Rg, obs, sigma, ref_cov, batch, invalid, first_problem, used, reference_index);

@@ -49,25 +49,27 @@ MeasureStatus projectWithJacobian(const MotionContext& m, const Eigen::Vector3d&
   const Eigen::Vector3d q(m.t.x() + Rp.x(), m.t.y() + Rp.y(), m.t.z() + beta * Rp.z());
   const double w = 1.0 + q.z();
   if (!(w > 1e-12)) return MeasureStatus::BehindCamera;
-  if (h) *h = q.head<2>() / w;
-  // dh/dq = [1/w, 0, -q1/w^2; 0, 1/w, -q2/w^2]  (appendix: the t_X, t_Y, t_Z beta partials)
-  Eigen::Matrix<double, 2, 3> dhdq;
-  dhdq << 1.0 / w, 0.0, -q.x() / (w * w), 0.0, 1.0 / w, -q.y() / (w * w);
-  Eigen::Matrix3d DR = m.R;
-  DR.row(2) *= beta;  // D R
+  const double iw = 1.0 / w, hx = q.x() * iw, hy = q.y() * iw;
+  if (h) *h = Eigen::Vector2d(hx, hy);
+  // dh/dq = [1/w, 0, -q1/w^2; 0, 1/w, -q2/w^2] (appendix: the t_X, t_Y, t_Z beta partials), applied
+  // to a vector v as ((v1 - h1 v3) / w, (v2 - h2 v3) / w): written out, this runs for every point.
+  auto dhdq = [&](double v0, double v1, double v2) { return Eigen::Vector2d((v0 - hx * v2) * iw, (v1 - hy * v2) * iw); };
   if (H_motion) {
-    H_motion->leftCols<3>() = dhdq;
+    H_motion->col(0) << iw, 0.0;
+    H_motion->col(1) << 0.0, iw;
+    H_motion->col(2) << -hx * iw, -hy * iw;
     for (int j = 0; j < 3; ++j) {
-      Eigen::Vector3d dq = m.dR[j] * p;  // D dR_j p
-      dq.z() *= beta;
-      H_motion->col(3 + j) = dhdq * dq;
+      const Eigen::Vector3d dq = m.dR[j] * p;  // D dR_j p with D = diag(1, 1, beta)
+      H_motion->col(3 + j) = dhdq(dq.x(), dq.y(), beta * dq.z());
     }
     // dq/dbeta = e3 e3^T R p + D R dp/dbeta
-    Eigen::Vector3d dqb = DR * dp_dbeta;
-    dqb.z() += Rp.z();
-    H_motion->col(6) = dhdq * dqb;
+    const Eigen::Vector3d Rdb = m.R * dp_dbeta;
+    H_motion->col(6) = dhdq(Rdb.x(), Rdb.y(), beta * Rdb.z() + Rp.z());
   }
-  if (dh_dp) *dh_dp = dhdq * DR;
+  if (dh_dp) {  // dh/dq D R
+    dh_dp->row(0) = (m.R.row(0) - (hx * beta) * m.R.row(2)) * iw;
+    dh_dp->row(1) = (m.R.row(1) - (hy * beta) * m.R.row(2)) * iw;
+  }
   return MeasureStatus::Ok;
 }
 

@@ -44,7 +44,7 @@ void accumulateResiduals(const RecursiveFilter<Model>& f, const std::vector<Obse
     acc.push_back(obs[fs.used[b]]);
     grp.push_back(group_of_obs[fs.used[b]]);
   }
-  MeasurementBatch batch;
+  BlockBatch batch;
   std::vector<int> used;
   int invalid = 0;
   MeasureStatus problem = MeasureStatus::Ok;
@@ -195,7 +195,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       std::vector<Observation> obs;
       for (const auto& p : tracks.frames[k])
         if (pidx[p.id] >= 0) obs.push_back({pidx[p.id], uvOf(p.px)});
-      const FrameStats fs = f.step(obs);
+      const FrameStats& fs = f.step(obs);
       if (k >= kMinFramesBeforeEnd && ranOut(fs, PointModel::kMinPoints)) {
         res.ended = ranOutNote(tracks.first_frame + k, fs.update.blocks, PointModel::kMinPoints);
         break;
@@ -318,7 +318,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
           obs.push_back({pidx[p.id], uvOf(p.px)});
           grp.push_back(labels[p.id]);
         }
-      const FrameStats fs = f.step(obs);
+      const FrameStats& fs = f.step(obs);
       if (k >= kMinFramesBeforeEnd && ranOut(fs, PlaneModel::kMinPoints)) {
         res.ended = ranOutNote(tracks.first_frame + k, fs.update.blocks, PlaneModel::kMinPoints);
         break;

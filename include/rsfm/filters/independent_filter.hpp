@@ -91,9 +91,12 @@ class IndependentPlanesFilter {
   /// state at its posterior, before omega is folded).
   void refineReferences(const std::vector<Observation>& obs, const std::vector<int>& used,
                         const std::vector<std::uint8_t>& gated) {
-    refineReferencesAt(model_, obs, used, gated, opt_.sigma_uv * opt_.sigma_uv, ekf_.P(), &ref_cov_,
-                       [&](int id, Eigen::Vector2d* h, Eigen::MatrixXd* H, Eigen::Matrix2d* Hu) {
-                         return model_.measure(ekf_.x(), Rg_, id, h, H, Hu) == MeasureStatus::Ok;
+    refineReferencesAt(model_, obs, used, gated, opt_.sigma_uv * opt_.sigma_uv, &ref_cov_,
+                       [&](int id, Eigen::Vector2d* h, Eigen::Matrix2d* HPHt, Eigen::Matrix2d* Hu) {
+                         Eigen::MatrixXd H;
+                         if (model_.measure(ekf_.x(), Rg_, id, h, &H, Hu) != MeasureStatus::Ok) return false;
+                         *HPHt = H * ekf_.P() * H.transpose();
+                         return true;
                        });
   }
 

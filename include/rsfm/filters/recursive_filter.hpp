@@ -133,21 +133,20 @@ inline bool refineReference(const Eigen::Matrix2d& HPHt, double s2, const Eigen:
 
 /// ReferenceModel::Refine after an applied update, for any filter: every accepted observation
 /// (`used[b]` not gated) refines its point's reference position with refineReference at the
-/// posterior. `measure(id, &h, &H, &Hu)` predicts observation `id` at the posterior with its
-/// state Jacobian H (2 x n) and dh/d(u, v)^1 (Hu); false skips it.
+/// posterior. `measure(id, &h, &HPHt, &Hu)` predicts observation `id` at the posterior with
+/// H P+ H^T (2 x 2, H its state Jacobian) and dh/d(u, v)^1 (Hu); false skips it.
 template <class Model, class Measure>
 void refineReferencesAt(Model& model, const std::vector<Observation>& obs, const std::vector<int>& used,
-                        const std::vector<std::uint8_t>& gated, double s2, const Eigen::MatrixXd& P,
-                        std::vector<Eigen::Matrix2d>* ref_cov, const Measure& measure) {
+                        const std::vector<std::uint8_t>& gated, double s2, std::vector<Eigen::Matrix2d>* ref_cov,
+                        const Measure& measure) {
   for (size_t b = 0; b < used.size(); ++b) {
     if (b < gated.size() && gated[b]) continue;
     const Observation& o = obs[used[b]];
     Eigen::Vector2d h;
-    Eigen::MatrixXd H;
-    Eigen::Matrix2d Hu;
-    if (!measure(o.id, &h, &H, &Hu)) continue;
+    Eigen::Matrix2d HPHt, Hu;
+    if (!measure(o.id, &h, &HPHt, &Hu)) continue;
     Eigen::Vector2d uv = model.reference(o.id);
-    if (refineReference(H * P * H.transpose(), s2, Hu, o.uv - h, &uv, &(*ref_cov)[o.id])) model.setReference(o.id, uv);
+    if (refineReference(HPHt, s2, Hu, o.uv - h, &uv, &(*ref_cov)[o.id])) model.setReference(o.id, uv);
   }
 }
 
@@ -182,7 +181,9 @@ class RecursiveFilter {
     }
   }
 
-  FrameStats step(const std::vector<Observation>& obs) {
+  /// One frame. The statistics live in the filter until the next step (no allocation per frame
+  /// once the filter has seen its largest frame, with the plain update: issue 15).
+  const FrameStats& step(const std::vector<Observation>& obs) {
     ensureReferenceCovariances();
     const std::vector<Eigen::Matrix2d>* rc =
         opt_.reference == ReferenceModel::Exact || opt_.reference == ReferenceModel::State ? nullptr : &ref_cov_;
@@ -193,37 +194,38 @@ class RecursiveFilter {
                                                                  : opt_.iterations;
     if (ref_index_ >= 0 && 2 * model_.numPoints() != ekf_.size() - ref_index_)
       throw std::logic_error("reference positions in the state: points cannot be added after the filter is built");
+    FrameStats& fs = fs_;
     // The previous posterior, for a step taken again on a model mismatch.
-    const Eigen::VectorXd x_post = ekf_.x();
-    const Eigen::MatrixXd P_post = ekf_.P();
-    FrameStats fs;
-    MeasurementBatch batch;
-    std::vector<int> used;
-    Eigen::VectorXd x_prior;
-    Eigen::MatrixXd P_prior;
+    if (opt_.mismatch_retries > 0) {
+      x_post_ = ekf_.x();
+      P_post_ = ekf_.P();
+    }
     double q_scale = 1.0;
     for (int attempt = 0;; ++attempt) {
-      fs = FrameStats();
-      fs.q_scale = q_scale;
-      Eigen::VectorXd q = Eigen::VectorXd::Constant(ekf_.size(), opt_.q_structure);
-      q.head<7>() = opt_.q_motion * q_scale;
-      ekf_.predict(q);
-      linearize(ekf_.x(), obs, rc, &batch, &fs.invalid, &fs.first_problem, &used);
-      x_prior = ekf_.x();
-      P_prior = ekf_.P();
       fs.iterations = 1;
-      fs.update = ekf_.update(batch, opt_.update);
+      fs.invalid = 0;
+      fs.first_problem = MeasureStatus::Ok;
+      fs.beta_projected = false;
+      fs.health = kHealthy;
+      fs.q_scale = q_scale;
+      q_.setConstant(ekf_.size(), opt_.q_structure);
+      q_.template head<7>() = opt_.q_motion * q_scale;
+      ekf_.predict(q_);
+      linearize(ekf_.x(), obs, rc, &batch_, &fs.invalid, &fs.first_problem, &fs.used);
+      x_prior_ = ekf_.x();
+      P_prior_ = ekf_.P();
+      ekf_.update(batch_, opt_.update, &fs.update);
       // A step taken again is iterated (the prior is far from the data's optimum: one
       // linearization at the prior overshoots).
       const int it = attempt > 0 ? std::max({iterations, opt_.warmup_iterations, 5}) : iterations;
-      if (it > 1 && fs.update.applied) iterate(it, obs, rc, x_prior, P_prior, &batch, &used, &fs);
+      if (it > 1 && fs.update.applied) iterate(it, obs, rc, &fs);
       const UpdateStats& u = fs.update;
       const bool refused_by_gate = !u.applied && (u.health & kTooFewMeasurements) && u.gated > 0 &&
                                    u.blocks >= opt_.update.min_blocks;
       const bool mostly_gated = u.applied && 2 * u.gated > u.blocks;
       if (attempt >= opt_.mismatch_retries || !(refused_by_gate || mostly_gated)) break;
-      ekf_.mutableX() = x_post;
-      ekf_.mutableP() = P_post;
+      ekf_.mutableX() = x_post_;
+      ekf_.mutableP() = P_post_;
       q_scale *= opt_.mismatch_factor;
     }
     fs.health = ekf_.health() | (fs.update.health & ~kTooFewMeasurements);
@@ -231,21 +233,33 @@ class RecursiveFilter {
     const Eigen::Vector3d omega = ekf_.x().template segment<3>(idx::kWx);
     if (!incrementalRotationValid(omega)) {
       // The update moved omega out of dq's domain (|omega| >= 2): roll it back and report.
-      ekf_.mutableX() = x_prior;
-      ekf_.mutableP() = P_prior;
-      syncReferences(x_prior);
+      ekf_.mutableX() = x_prior_;
+      ekf_.mutableP() = P_prior_;
+      syncReferences(x_prior_);
       fs.update.applied = false;
       fs.health |= kInvalidRotation;
       return fs;
     }
     if (opt_.reference == ReferenceModel::Refine && fs.update.applied && fs.health == kHealthy)
-      refineReferences(obs, used, fs.update.gated_mask);
+      refineReferences(obs, fs.used, fs.update.gated_mask);
     syncReferences(ekf_.x());
-    fs.used = used;
     // R^k = R(dq(omega)) R^{k-1} (seed appendix).
     Rg_ = incrementalRotation(omega) * Rg_;
     if (opt_.reading == RotationReading::Reset) ekf_.mutableX().template segment<3>(idx::kWx).setZero();
     return fs;
+  }
+
+  /// Starts again from state (x, P) with global rotation Rg (the steps count from 0 again), keeping
+  /// the model and the work space: a second pass over the same frames, or a benchmark's repeated
+  /// frame, allocates nothing.
+  void restart(const Eigen::VectorXd& x, const Eigen::MatrixXd& P, const Eigen::Matrix3d& Rg) {
+    if (x.size() != ekf_.size() || P.rows() != ekf_.size() || P.cols() != ekf_.size())
+      throw std::invalid_argument("RecursiveFilter::restart: state size differs from the filter's");
+    ekf_.mutableX() = x;
+    ekf_.mutableP() = P;
+    Rg_ = Rg;
+    steps_ = 0;
+    syncReferences(ekf_.x());
   }
 
   const Model& model() const { return model_; }
@@ -276,7 +290,7 @@ class RecursiveFilter {
   /// The model's linearization at x; with the references in the state, at x's references, with
   /// each block's dh/d(u, v)^1 in their columns.
   void linearize(const Eigen::VectorXd& x, const std::vector<Observation>& obs, const std::vector<Eigen::Matrix2d>* rc,
-                 MeasurementBatch* batch, int* invalid, MeasureStatus* problem, std::vector<int>* used) {
+                 BlockBatch* batch, int* invalid, MeasureStatus* problem, std::vector<int>* used) {
     syncReferences(x);
     model_.linearize(x, Rg_, obs, opt_.sigma_uv, rc, batch, invalid, problem, used, ref_index_);
   }
@@ -293,47 +307,47 @@ class RecursiveFilter {
   /// so the first step is a damped EKF step. Stops on a step below iteration_tol, or when no step
   /// decreases J (the iterate is kept). The covariance is the one from the last linearization.
   void iterate(int iterations, const std::vector<Observation>& obs, const std::vector<Eigen::Matrix2d>* rc,
-               const Eigen::VectorXd& x_prior, const Eigen::MatrixXd& P_prior, MeasurementBatch* batch,
-               std::vector<int>* used, FrameStats* fs) {
+               FrameStats* fs) {
+    const Eigen::VectorXd& x_prior = x_prior_;
+    const Eigen::MatrixXd& P_prior = P_prior_;
+    std::vector<int>* used = &fs->used;
     std::vector<char> accepted(obs.size(), 0);
     for (size_t b = 0; b < used->size(); ++b)
       if (b >= fs->update.gated_mask.size() || !fs->update.gated_mask[b]) accepted[(*used)[b]] = 1;
     const int invalid0 = fs->invalid;
+    BlockBatch work;
+    std::vector<int> u;
     auto cost = [&](const Eigen::VectorXd& x, double* out) {
-      MeasurementBatch b;
-      std::vector<int> u;
       int inv = 0;
       MeasureStatus pr = MeasureStatus::Ok;
-      linearize(x, obs, rc, &b, &inv, &pr, &u);
-      if (inv > invalid0 || !b.residual.allFinite()) return false;
+      linearize(x, obs, rc, &work, &inv, &pr, &u);
+      if (inv > invalid0 || !work.residual.head(work.rows()).allFinite()) return false;
       double c = 0.0;
       for (size_t k = 0; k < u.size(); ++k) {
         if (!accepted[u[k]]) continue;
-        const Eigen::Vector2d r = b.residual.template segment<2>(2 * k);
-        const Eigen::Matrix2d R = b.R.template block<2, 2>(2 * k, 0);
+        const Eigen::Vector2d r = work.residual.template segment<2>(2 * k);
+        const Eigen::Matrix2d R = work.R.template block<2, 2>(2 * k, 0);
         c += r.dot(R.ldlt().solve(r));
       }
       *out = c;
       return true;
     };
-    // The statistics, blocks and batch of the latest Gauss-Newton point (reported with its P).
+    // The statistics and blocks of the latest Gauss-Newton point (reported with its P).
     UpdateStats st_gn = fs->update;
     std::vector<int> used_gn = *used;
+    UpdateStats st;
     auto gaussNewtonPoint = [&](const Eigen::VectorXd& x_lin) {
-      MeasurementBatch relin;
-      std::vector<int> used_i;
       int invalid = 0;
       MeasureStatus problem = MeasureStatus::Ok;
-      linearize(x_lin, obs, rc, &relin, &invalid, &problem, &used_i);
+      linearize(x_lin, obs, rc, &work, &invalid, &problem, &u);
       if (invalid > invalid0) return false;
-      relin.residual += relin.H * (x_lin - x_prior);
+      work.shiftResidual(x_lin - x_prior);
       ekf_.mutableX() = x_prior;
       ekf_.mutableP() = P_prior;
-      UpdateStats st = ekf_.update(relin, opt_.update);
+      ekf_.update(work, opt_.update, &st);
       if (!st.applied) return false;
-      st_gn = std::move(st);
-      used_gn = std::move(used_i);
-      *batch = std::move(relin);
+      st_gn = st;
+      used_gn = u;
       return true;
     };
     const int n = iteratedUpdate(&ekf_, iterations, opt_.iteration_tol, 4, x_prior, P_prior, cost, gaussNewtonPoint);
@@ -343,13 +357,25 @@ class RecursiveFilter {
     fs->iterations = n;
   }
 
+  /// ReferenceModel::Refine: H P+ H^T from the compact Jacobian (the motion block and the
+  /// point's structure columns), no dense row per observation.
   void refineReferences(const std::vector<Observation>& obs, const std::vector<int>& used,
                         const std::vector<std::uint8_t>& gated) {
+    constexpr int S = Model::kStructurePerPoint;
     const MotionContext m = MotionContext::fromState(ekf_.x(), Rg_);
-    refineReferencesAt(model_, obs, used, gated, opt_.sigma_uv * opt_.sigma_uv, ekf_.P(), &ref_cov_,
-                       [&](int id, Eigen::Vector2d* h, Eigen::MatrixXd* H, Eigen::Matrix2d* Hu) {
-                         return model_.measure(m, ekf_.x(), id, h, nullptr, nullptr, Hu) == MeasureStatus::Ok &&
-                                model_.measure(ekf_.x(), Rg_, id, nullptr, H) == MeasureStatus::Ok;
+    const Eigen::MatrixXd& P = ekf_.P();
+    refineReferencesAt(model_, obs, used, gated, opt_.sigma_uv * opt_.sigma_uv, &ref_cov_,
+                       [&](int id, Eigen::Vector2d* h, Eigen::Matrix2d* HPHt, Eigen::Matrix2d* Hu) {
+                         Eigen::Matrix<double, 2, 7> Hm;
+                         Eigen::Matrix<double, 2, S> Hs;
+                         if (model_.measure(m, ekf_.x(), id, h, &Hm, &Hs, Hu) != MeasureStatus::Ok) return false;
+                         const int si = model_.structureIndex(id);
+                         const Eigen::Matrix<double, 7, 2> PmH =
+                             P.template topLeftCorner<7, 7>() * Hm.transpose() + P.template block<7, S>(0, si) * Hs.transpose();
+                         const Eigen::Matrix<double, S, 2> PsH =
+                             P.template block<S, 7>(si, 0) * Hm.transpose() + P.template block<S, S>(si, si) * Hs.transpose();
+                         *HPHt = Hm * PmH + Hs * PsH;
+                         return true;
                        });
   }
 
@@ -360,6 +386,11 @@ class RecursiveFilter {
   std::vector<Eigen::Matrix2d> ref_cov_;
   int ref_index_ = -1;  ///< ReferenceModel::State: first reference column (-1: not in the state)
   int steps_ = 0;  ///< steps taken (warm-up)
+  // Per-step work space, kept so that a step allocates nothing once warm (issue 15).
+  FrameStats fs_;
+  BlockBatch batch_;
+  Eigen::VectorXd q_, x_post_, x_prior_;
+  Eigen::MatrixXd P_post_, P_prior_;
 };
 
 }  // namespace rsfm

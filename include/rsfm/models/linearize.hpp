@@ -14,7 +14,7 @@
 
 namespace rsfm {
 
-/// Fills `batch` with residual z - h(x), Jacobian and R = sigma^2 I (+ Hu C_i Hu^T with
+/// Fills `batch` (compact Jacobians, ekf.hpp's BlockBatch) with residual z - h(x), Jacobian and R = sigma^2 I (+ Hu C_i Hu^T with
 /// `ref_cov`, C_i the covariance of point i's reference position). With `reference_index` >= 0
 /// the reference positions are part of x (ReferenceModel::State): point i's Hu = dh/d(u, v)^1
 /// goes to columns reference_index + 2i. Observations whose prediction fails are left out and
@@ -23,15 +23,20 @@ namespace rsfm {
 template <class Model>
 void linearizeObservations(const Model& model, const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
                            const std::vector<Observation>& obs, double sigma,
-                           const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
+                           const std::vector<Eigen::Matrix2d>* ref_cov, BlockBatch* batch,
                            int* invalid, MeasureStatus* first_problem, std::vector<int>* used,
                            int reference_index = -1) {
   constexpr int S = Model::kStructurePerPoint;
   const MotionContext m = MotionContext::fromState(x, Rg);
-  batch->resize(static_cast<int>(obs.size()), static_cast<int>(x.size()), 2);
+  // Compact layout (ekf.hpp): the 7 motion columns shared, then the point's S structure columns
+  // (and with the references in the state its 2 reference columns).
+  const int own = S + (reference_index >= 0 ? 2 : 0);
+  batch->reserve(static_cast<int>(obs.size()), 2, 7, own);
   if (used) used->clear();
   *invalid = 0;
   *first_problem = MeasureStatus::Ok;
+  const bool need_hu = ref_cov || reference_index >= 0;
+  const Eigen::Matrix2d R0 = Eigen::Matrix2d::Identity() * sigma * sigma;
   int b = 0;
   for (int k = 0; k < static_cast<int>(obs.size()); ++k) {
     const Observation& o = obs[k];
@@ -41,25 +46,30 @@ void linearizeObservations(const Model& model, const Eigen::VectorXd& x, const E
     Eigen::Matrix2d Hu;
     const MeasureStatus s = o.id < 0 || o.id >= model.numPoints()
                                 ? MeasureStatus::UnknownFeature
-                                : model.measure(m, x, o.id, &h, &Hm, &Hs, ref_cov || reference_index >= 0 ? &Hu : nullptr);
+                                : model.measure(m, x, o.id, &h, &Hm, &Hs, need_hu ? &Hu : nullptr);
     if (s != MeasureStatus::Ok || !o.uv.allFinite()) {
       if (*invalid == 0) *first_problem = s == MeasureStatus::Ok ? MeasureStatus::NonFinite : s;
       ++*invalid;
       continue;
     }
     batch->residual.template segment<2>(2 * b) = o.uv - h;
-    batch->H.template block<2, 7>(2 * b, 0) = Hm;
-    batch->H.template block<2, S>(2 * b, model.structureIndex(o.id)) = Hs;
-    if (reference_index >= 0) batch->H.template block<2, 2>(2 * b, reference_index + 2 * o.id) = Hu;
-    Eigen::Matrix2d R = Eigen::Matrix2d::Identity() * sigma * sigma;
-    if (ref_cov) R += Hu * (*ref_cov)[o.id] * Hu.transpose();
-    batch->R.template block<2, 2>(2 * b, 0) = R;
+    batch->J.template block<2, 7>(2 * b, 0) = Hm;
+    batch->J.template block<2, S>(2 * b, 7) = Hs;
+    const int si = model.structureIndex(o.id);
+    for (int j = 0; j < S; ++j) batch->cols(b, j) = si + j;
+    if (reference_index >= 0) {
+      batch->J.template block<2, 2>(2 * b, 7 + S) = Hu;
+      batch->cols(b, S) = reference_index + 2 * o.id;
+      batch->cols(b, S + 1) = reference_index + 2 * o.id + 1;
+    }
+    if (ref_cov)
+      batch->R.template block<2, 2>(2 * b, 0) = R0 + Hu * (*ref_cov)[o.id] * Hu.transpose();
+    else
+      batch->R.template block<2, 2>(2 * b, 0) = R0;
     if (used) used->push_back(k);
     ++b;
   }
-  batch->residual.conservativeResize(2 * b);
-  batch->H.conservativeResize(2 * b, Eigen::NoChange);
-  batch->R.conservativeResize(2 * b, Eigen::NoChange);
+  batch->blocks = b;
 }
 
 }  // namespace rsfm

@@ -50,10 +50,12 @@ class PlaneModel {
   static MeasureStatus checkRay(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv1);
 
   /// Reference-frame 3-D point of eq. 12 with dp/dbeta and dp/dN (3x3, columns N_X, N_Y, N_Z)
-  /// (seed appendix) and dp/d(u, v) (3x2). Outputs may be null.
+  /// (seed appendix) and dp/d(u, v) (3x2). dp/dN has rank one, ray c^T with the ray
+  /// (beta u, beta v, 1): `dp_dN_coeff` receives c. Outputs may be null.
   static MeasureStatus point(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv1,
                              Eigen::Vector3d* p, Eigen::Vector3d* dp_dbeta,
-                             Eigen::Matrix3d* dp_dN, Eigen::Matrix<double, 3, 2>* dp_duv = nullptr);
+                             Eigen::Matrix3d* dp_dN, Eigen::Matrix<double, 3, 2>* dp_duv = nullptr,
+                             Eigen::Vector3d* dp_dN_coeff = nullptr);
 
   /// Transfer of a point first seen in a later frame (DESIGN.md §3): the reference-frame image
   /// position of the point of plane N (reference frame) seen at `uv` in the camera with motion
@@ -81,7 +83,7 @@ class PlaneModel {
   /// Failed predictions are left out and counted; `used` receives each block's observation index.
   void linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
                  const std::vector<Observation>& obs, double sigma,
-                 const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
+                 const std::vector<Eigen::Matrix2d>* ref_cov, BlockBatch* batch,
                  int* invalid, MeasureStatus* first_problem, std::vector<int>* used = nullptr,
                  int reference_index = -1) const;
 

@@ -52,7 +52,7 @@ class PointModel {
   /// `used` (optional) receives the observation index of each batch block.
   void linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
                  const std::vector<Observation>& obs, double sigma,
-                 const std::vector<Eigen::Matrix2d>* ref_cov, MeasurementBatch* batch,
+                 const std::vector<Eigen::Matrix2d>* ref_cov, BlockBatch* batch,
                  int* invalid, MeasureStatus* first_problem, std::vector<int>* used = nullptr,
                  int reference_index = -1) const;
 
