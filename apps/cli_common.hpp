@@ -38,6 +38,7 @@ const std::string& invocation();
 void addExperimentCommands(CLI::App& app, std::vector<Command>& commands);
 void addTrackCommands(CLI::App& app, std::vector<Command>& commands);
 void addEstimateCommands(CLI::App& app, std::vector<Command>& commands);
+void addRunCommands(CLI::App& app, std::vector<Command>& commands);
 void addRenderCommands(CLI::App& app, std::vector<Command>& commands);
 void addEvaluateCommands(CLI::App& app, std::vector<Command>& commands);
 void addBenchCommands(CLI::App& app, std::vector<Command>& commands);

@@ -9,6 +9,8 @@
 #include <sstream>
 
 #include "cli_common.hpp"
+#include "estimate_cli.hpp"
+#include "track_options.hpp"
 #include "rsfm/io/atomic_file.hpp"
 #include "rsfm/report/estimate_report.hpp"
 #include "rsfm/report/patch_report.hpp"
@@ -18,10 +20,8 @@
 #include "rsfm/io/tracks_io.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
 #include "rsfm/vision/camera_file.hpp"
-#include "rsfm/vision/overlay.hpp"
 #include "rsfm/vision/plane_finder.hpp"
 #include "rsfm/vision/plane_init.hpp"
-#include "track_options.hpp"
 
 namespace rsfm::cli {
 
@@ -32,24 +32,30 @@ nlohmann::json startJson(const vision::PlaneStart& start) {
   return {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}, {"focal_at_grid_end", start.at_grid_end}};
 }
 
-/// The command line of `rsfm estimate` / `rsfm run`: the library's option structs (filled by
-/// CLI11 directly, each option in one place) and the few words that need parsing.
-struct EstimateCli {
-  EstimateOptions est;          ///< point | plane | planes (pipeline/estimate.hpp)
-  PatchEstimateOptions pat;     ///< patches
-  std::string model = toString(TrackModel::Planes);
-  bool patches = false;         ///< --model patches: Calway's patch filter on affine patches
-  std::string centres = "fused", measurement = "exact";
-  std::string reference = std::string(toString(TrackFilterOptions::defaultFilter().reference));
-  std::string plane_rois;       ///< "x,y,...;x,y,..."
-  std::optional<double> beta_sd0;  ///< --beta-sd0: either pipeline's
-  std::string refine = "final";    ///< --refine final | none
-  std::string camera_file;         ///< --camera FILE
-  std::vector<double> principal_point;  ///< --principal-point X,Y
-  bool plots = true;
-  bool quiet = false;
-  std::string out = "out";
-};
+}  // namespace
+
+/// "x,y,x,y,..." -> polygon vertices (--roi, --plane-roi). Here rather than in cmd_track.cpp: both
+/// executables use it (apps/rsfm_main.cpp).
+std::string parsePolygon(const std::string& s, std::vector<cv::Point2f>* out) {
+  out->clear();
+  std::vector<double> v;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    try {
+      size_t used = 0;
+      const double d = std::stod(item, &used);
+      if (used != item.size() || !std::isfinite(d)) throw std::invalid_argument("bad");
+      v.push_back(d);
+    } catch (const std::exception&) {
+      return fmt::format("polygon '{}': '{}' is not a number", s, item);
+    }
+  }
+  if (v.size() % 2 != 0) return fmt::format("polygon '{}': odd number of coordinates", s);
+  if (v.size() < 6) return fmt::format("polygon '{}': needs at least 3 vertices (x,y,x,y,x,y)", s);
+  for (size_t i = 0; i < v.size(); i += 2) out->emplace_back(static_cast<float>(v[i]), static_cast<float>(v[i + 1]));
+  return "";
+}
 
 void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   TrackFilterOptions& f = e->est.filter;
@@ -204,6 +210,8 @@ double now() { return std::chrono::duration<double>(std::chrono::steady_clock::n
 /// camera.yaml: the camera the run ended with (OpenCV FileStorage YAML, docs/outputs.md): the
 /// given calibration, or the refinement's estimate with its sds and what is determined. Empty
 /// when there is neither (no refinement).
+namespace {
+
 std::string cameraYamlOf(const EstimateResult& r, const EstimateOptions& o, const ImageInfo& image) {
   if (o.camera) {
     const vision::CameraCalibration& c = *o.camera;
@@ -240,9 +248,11 @@ std::function<void(const std::string&)> noteTo(bool quiet) {
   return [](const std::string& m) { fmt::print(stderr, "{}\n", m); };
 }
 
+}  // namespace
+
 /// The pipeline (pipeline/estimate.hpp) + report (+ overlay when `overlay_input` is set). Returns the exit code.
-int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::string& overlay_input,
-                      vision::FrameRange range, double t_start, bool write_tracks) {
+int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOverlay& overlay, double t_start,
+                      bool write_tracks) {
   EstimateResult r;
   try {
     r = estimate(tracks, e.est, noteTo(e.quiet),
@@ -286,9 +296,7 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
         if (write_tracks) files.write(std::filesystem::path(e.out) / "tracks.csv", io::tracksToString(tracks));
         if (const std::string yaml = cameraYamlOf(r, e.est, tracks.image); !yaml.empty())
           files.write(std::filesystem::path(e.out) / "camera.yaml", yaml);
-        if (!overlay_input.empty())
-          vision::writeOverlay(overlay_input, range, tracks, r.labels(), r.main(),
-                               files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
+        if (overlay) overlay(r, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
         files.commit();
       }))
     return rc;
@@ -311,14 +319,14 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const std::str
     fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum{}, planes.csv, poses.csv, labels.csv{}{}{}\n", e.out,
                r.refined.ok ? ", trajectory_online.tum" : "",
                e.plots ? ", motion/normals/focal.png" : "", write_tracks ? ", tracks.csv" : "",
-               overlay_input.empty() ? "" : ", overlay.mp4");
+               overlay ? ", overlay.mp4" : "");
   }
   return 0;
 }
 
 /// The patch pipeline (pipeline/estimate.hpp) + report (+ overlay when `overlay_input` is set).
-int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, const std::string& overlay_input,
-                           vision::FrameRange range, double t_start, bool write_patches) {
+int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, const PatchOverlay& overlay,
+                           double t_start, bool write_patches) {
   nlohmann::json start_json;
   PatchEstimateResult pr;
   try {
@@ -343,8 +351,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
         rep.seconds = now() - t_start;
         summary = report::writePatchReport(rep, e.out, &files, e.plots);
         if (write_patches) files.write(std::filesystem::path(e.out) / "patches.csv", io::patchesToString(tracks));
-        if (!overlay_input.empty())
-          vision::writePatchOverlay(overlay_input, range, tracks, res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
+        if (overlay) overlay(res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
         files.commit();
       }))
     return rc;
@@ -357,12 +364,10 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
                res.frames.size(), res.entered, res.joined, res.left, summary["focal_px"].get<double>(),
                summary["focal_sd_px"].get<double>(), ln["within_5deg"].get<int>(),
                summary["patches"]["live_last_frame"].get<int>(), ln["angle_to_median_deg"]["median"].get<double>(), e.out,
-               e.plots ? ", patch_run.png" : "", write_patches ? ", patches.csv" : "", overlay_input.empty() ? "" : ", overlay.mp4");
+               e.plots ? ", patch_run.png" : "", write_patches ? ", patches.csv" : "", overlay ? ", overlay.mp4" : "");
   }
   return 0;
 }
-
-}  // namespace
 
 void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
   {
@@ -391,7 +396,7 @@ void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
         } catch (const std::exception& ex) {
           return fail(kBadInput, ex.what());
         }
-        return patchEstimateAndReport(pt, c->e, "", {}, t0, false);
+        return patchEstimateAndReport(pt, c->e, {}, t0, false);
       }
       Tracks tracks;
       try {
@@ -399,38 +404,7 @@ void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
       } catch (const std::exception& ex) {
         return fail(kBadInput, ex.what());
       }
-      return estimateAndReport(tracks, c->e, "", {}, t0, false);
-    }});
-  }
-  {
-    struct Cli {
-      EstimateCli e;
-      TrackCli t;
-      std::string input;
-      bool overlay = true;
-    };
-    auto c = std::make_shared<Cli>();
-    auto* rn = app.add_subcommand("run", "track a video, find planes, estimate and report (the whole chain)");
-    rn->add_option("input", c->input, "video file, image pattern (frames/img%04d.png) or folder of images")->required();
-    addEstimateOptions(rn, &c->e);
-    addTrackerOptions(rn, &c->t);
-    addPatchTrackerOptions(rn, &c->t);
-    rn->add_flag("!--no-overlay", c->overlay, "skip overlay.mp4");
-    commands.push_back({rn, [c]() -> int {
-      const double t0 = now();
-      if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);
-      if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
-      if (auto m = io::ensureWritableDirectory(c->e.out); !m.empty()) return fail(kBadInput, m);
-      const auto progress = c->e.quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames");
-      if (c->e.patches) {
-        PatchTracks pt;
-        if (int rc = guarded([&] { pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range, progress); })) return rc;
-        return patchEstimateAndReport(pt, c->e, c->overlay ? c->input : "", c->t.range, t0, true);
-      }
-      Tracks tracks;
-      if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
-      // The tracks are part of the report.
-      return estimateAndReport(tracks, c->e, c->overlay ? c->input : "", c->t.range, t0, true);
+      return estimateAndReport(tracks, c->e, {}, t0, false);
     }});
   }
 }

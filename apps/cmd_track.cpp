@@ -40,27 +40,6 @@ void addPatchTrackerOptions(CLI::App* app, TrackCli* t) {
       ->capture_default_str();
 }
 
-std::string parsePolygon(const std::string& s, std::vector<cv::Point2f>* out) {
-  out->clear();
-  std::vector<double> v;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
-    try {
-      size_t used = 0;
-      const double d = std::stod(item, &used);
-      if (used != item.size() || !std::isfinite(d)) throw std::invalid_argument("bad");
-      v.push_back(d);
-    } catch (const std::exception&) {
-      return fmt::format("polygon '{}': '{}' is not a number", s, item);
-    }
-  }
-  if (v.size() % 2 != 0) return fmt::format("polygon '{}': odd number of coordinates", s);
-  if (v.size() < 6) return fmt::format("polygon '{}': needs at least 3 vertices (x,y,x,y,x,y)", s);
-  for (size_t i = 0; i < v.size(); i += 2) out->emplace_back(static_cast<float>(v[i]), static_cast<float>(v[i + 1]));
-  return "";
-}
-
 std::string finishTrackerOptions(TrackCli* t) {
   const auto& o = t->tracker;
   if (t->range.first < 0) return "--first must be >= 0";

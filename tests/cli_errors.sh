@@ -323,5 +323,24 @@ check "estimate: maps in the state and fused maps" 2 "$V4" -- estimate --patches
 
 # --help succeeds.
 if "$RSFM" experiment table1 --help >/dev/null 2>&1; then pass=$((pass + 1)); echo "ok   --help"; else fail=$((fail + 1)); echo "FAIL --help"; fi
+
+# Issue 15: `rsfm` does not load OpenCV's video and image I/O; the video commands are handed over
+# to rsfm-video beside it (the same arguments), and without it the hand-over fails in one line.
+if ldd "$RSFM" | grep -q "libopencv_videoio\|libopencv_imgcodecs\|libavcodec"; then
+  fail=$((fail + 1)); echo "FAIL rsfm links the video stack: $(ldd "$RSFM" | grep -c opencv) OpenCV libraries"
+else
+  pass=$((pass + 1)); echo "ok   rsfm loads $(ldd "$RSFM" | wc -l) shared libraries, no video or image I/O"
+fi
+if "$RSFM" track --help 2>/dev/null | grep -q -- "--max-tracks" && "$RSFM" --help | grep -q "^ *run "; then
+  pass=$((pass + 1)); echo "ok   rsfm hands 'track' over to rsfm-video and lists 'run' in --help"
+else
+  fail=$((fail + 1)); echo "FAIL rsfm track --help (through rsfm-video) or rsfm --help"
+fi
+mkdir -p "$TMP/lone" && cp "$RSFM" "$TMP/lone/rsfm"
+RSFM_SAVED="$RSFM"
+RSFM="$TMP/lone/rsfm"
+check "video command without rsfm-video" 1 "$TMP/o9" -- run "$TMP/none.mp4" --out "$TMP/o9"
+grep -q "rsfm-video" "$TMP/err.txt" || { fail=$((fail + 1)); echo "FAIL the message does not name rsfm-video"; }
+RSFM="$RSFM_SAVED"
 echo "$pass passed, $fail failed"
 [ "$fail" -eq 0 ]

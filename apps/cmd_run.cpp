@@ -1,0 +1,55 @@
+// `rsfm run`: track a video, then the estimate and report of `rsfm estimate` (apps/estimate_cli.hpp)
+// with the overlay video. Part of rsfm-video, the binary that links OpenCV's video I/O.
+#include "cli_common.hpp"
+#include "estimate_cli.hpp"
+#include "rsfm/io/atomic_file.hpp"
+#include "rsfm/vision/overlay.hpp"
+#include "track_options.hpp"
+
+namespace rsfm::cli {
+
+void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
+  {
+    struct Cli {
+      EstimateCli e;
+      TrackCli t;
+      std::string input;
+      bool overlay = true;
+    };
+    auto c = std::make_shared<Cli>();
+    auto* rn = app.add_subcommand("run", "track a video, find planes, estimate and report (the whole chain)");
+    rn->add_option("input", c->input, "video file, image pattern (frames/img%04d.png) or folder of images")->required();
+    addEstimateOptions(rn, &c->e);
+    addTrackerOptions(rn, &c->t);
+    addPatchTrackerOptions(rn, &c->t);
+    rn->add_flag("!--no-overlay", c->overlay, "skip overlay.mp4");
+    commands.push_back({rn, [c]() -> int {
+      const double t0 = now();
+      if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);
+      if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
+      if (auto m = io::ensureWritableDirectory(c->e.out); !m.empty()) return fail(kBadInput, m);
+      const auto progress = c->e.quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames");
+      if (c->e.patches) {
+        PatchTracks pt;
+        if (int rc = guarded([&] { pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range, progress); })) return rc;
+        PatchOverlay overlay;
+        if (c->overlay)
+          overlay = [&](const PatchRunResult& res, const std::filesystem::path& tmp) {
+            vision::writePatchOverlay(c->input, c->t.range, pt, res, tmp);
+          };
+        return patchEstimateAndReport(pt, c->e, overlay, t0, true);
+      }
+      Tracks tracks;
+      if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
+      // The tracks are part of the report.
+      TrackOverlay overlay;
+      if (c->overlay)
+        overlay = [&](const EstimateResult& r, const std::filesystem::path& tmp) {
+          vision::writeOverlay(c->input, c->t.range, tracks, r.labels(), r.main(), tmp);
+        };
+      return estimateAndReport(tracks, c->e, overlay, t0, true);
+    }});
+  }
+}
+
+}  // namespace rsfm::cli

@@ -1,0 +1,54 @@
+#pragma once
+// The options and the report step shared by `rsfm estimate` (apps/cmd_estimate.cpp) and `rsfm run`
+// (apps/cmd_run.cpp). The overlay video is a callback, so that `rsfm estimate` does not link the
+// video stack (issue 15: `rsfm` starts without OpenCV's video I/O; `rsfm run` lives in rsfm-video).
+#include <CLI/CLI.hpp>
+
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "rsfm/pipeline/estimate.hpp"
+#include "rsfm/pipeline/patch_pipeline.hpp"
+
+namespace rsfm::cli {
+
+/// The command line of `rsfm estimate` / `rsfm run`: the library's option structs (filled by
+/// CLI11 directly, each option in one place) and the few words that need parsing.
+struct EstimateCli {
+  EstimateOptions est;          ///< point | plane | planes (pipeline/estimate.hpp)
+  PatchEstimateOptions pat;     ///< patches
+  std::string model = toString(TrackModel::Planes);
+  bool patches = false;         ///< --model patches: Calway's patch filter on affine patches
+  std::string centres = "fused", measurement = "exact";
+  std::string reference = std::string(toString(TrackFilterOptions::defaultFilter().reference));
+  std::string plane_rois;       ///< "x,y,...;x,y,..."
+  std::optional<double> beta_sd0;  ///< --beta-sd0: either pipeline's
+  std::string refine = "final";    ///< --refine final | none
+  std::string camera_file;         ///< --camera FILE
+  std::vector<double> principal_point;  ///< --principal-point X,Y
+  bool plots = true;
+  bool quiet = false;
+  std::string out = "out";
+};
+
+void addEstimateOptions(CLI::App* a, EstimateCli* e);
+/// Checks and completes the options; a message when they are inconsistent.
+std::string finishEstimateOptions(EstimateCli* e);
+/// Seconds on a monotonic clock.
+double now();
+
+/// Writes the overlay video of a result to a temporary file (committed with the other outputs).
+using TrackOverlay = std::function<void(const EstimateResult&, const std::filesystem::path&)>;
+using PatchOverlay = std::function<void(const PatchRunResult&, const std::filesystem::path&)>;
+
+/// The pipeline (pipeline/estimate.hpp) + report (+ the overlay when given). Returns the exit code.
+int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOverlay& overlay, double t_start,
+                      bool write_tracks);
+/// The patch pipeline + report (+ the overlay when given). Returns the exit code.
+int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, const PatchOverlay& overlay,
+                           double t_start, bool write_patches);
+
+}  // namespace rsfm::cli
