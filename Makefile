@@ -7,7 +7,7 @@ BUILD ?= build
 OUT ?= out
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 
-.PHONY: all deps configure build demo experiments regimes test bench clean
+.PHONY: all deps configure build demo experiments regimes test test-sanitize bench clean
 
 all: build
 
@@ -37,6 +37,15 @@ regimes: build
 
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j$(JOBS)
+
+# The whole suite again under AddressSanitizer + UndefinedBehaviorSanitizer (issue 17), in its own
+# build directory; any finding fails the test that met it. Leak checking is off (LeakSanitizer
+# needs ptrace, which containers often refuse).
+test-sanitize: deps
+	cmake -S . -B $(BUILD)-sanitize -DCMAKE_BUILD_TYPE=Release -DRSFM_SANITIZE=ON -DRSFM_BUILD_BENCH=OFF
+	cmake --build $(BUILD)-sanitize -j$(JOBS)
+	cd $(BUILD)-sanitize && ASAN_OPTIONS=detect_leaks=0:abort_on_error=0 UBSAN_OPTIONS=print_stacktrace=1 \
+	  ctest --output-on-failure -j$(JOBS)
 
 bench: build
 	./$(BUILD)/rsfm_bench --benchmark_counters_tabular=true
