@@ -486,7 +486,7 @@ PatchTracks tracksFromScene(const PatchScene& s, double s_px, double noise_px, s
       if (k == 0) o.px = o.px0;
       f.push_back(o);
     }
-    if (k >= 40) {
+    if (k >= 40 && s.patches() > 2) {  // a late patch (a copy of patch 2) joins at frame 40
       PatchObservation o;
       o.id = s.patches();
       o.px0 = s.centre[40][2] * s_px + c;

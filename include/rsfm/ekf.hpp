@@ -181,8 +181,15 @@ class Ekf {
   Eigen::VectorXd x_;
   Eigen::MatrixXd P_;
   std::vector<bool> fixed_;
-  /// Update work space (sizes follow the state and the largest batch seen; never shrinks).
+  /// Update work space (sizes follow the state and the largest batch seen; never shrinks). It is
+  /// not part of the filter's value: a copied or moved Ekf starts with an empty one (copying an
+  /// Eigen factorization that never ran reads its uninitialized status, which UBSan reports).
   struct Work {
+    Work() = default;
+    Work(const Work&) {}
+    Work(Work&&) noexcept {}
+    Work& operator=(const Work&) { return *this; }
+    Work& operator=(Work&&) noexcept { return *this; }
     std::vector<int> free;       ///< free component indices
     Eigen::MatrixXd Pf;          ///< P's free part
     Eigen::LLT<Eigen::MatrixXd> llt;
