@@ -325,10 +325,12 @@ bool Ekf::gateAndWhiten(const BlockBatch& batch, const UpdateOptions& opt, Updat
     w.gate_probability = opt.gate_probability;
     w.gate_dim = bd;
   }
-  w.used.clear();
   double ss = 0.0;
   int k = 0;
   for (int b = 0; b < nb; ++b) {
+    // Whiten block b in place (rows of A) and into eb; with gating, its distance d2.
+    Vec eb(bd);
+    double d2 = 0.0;
     if constexpr (BD == 2) {
       // Two rows (the point models): Cholesky of R_b, whitening and the gate written out.
       const double r00 = batch.R(2 * b, 0), r01 = batch.R(2 * b, 1), r10 = batch.R(2 * b + 1, 0),
@@ -336,10 +338,8 @@ bool Ekf::gateAndWhiten(const BlockBatch& batch, const UpdateOptions& opt, Updat
       const double r0 = batch.residual[2 * b], r1 = batch.residual[2 * b + 1];
       if (!std::isfinite(r00 + r01 + r10 + r11 + r0 + r1)) return nonFinite(st);
       auto a0 = w.A.row(2 * b), a1 = w.A.row(2 * b + 1);
-      double e0, e1;
       if (iso > 0.0) {  // already whitened through G
-        e0 = r0 * inv_s;
-        e1 = r1 * inv_s;
+        eb << r0 * inv_s, r1 * inv_s;
       } else {
         const double l00 = std::sqrt(r00), l10 = r10 / l00, d11 = r11 - l10 * l10;
         if (!(r00 > 0.0) || !(d11 > 0.0)) {
@@ -349,60 +349,44 @@ bool Ekf::gateAndWhiten(const BlockBatch& batch, const UpdateOptions& opt, Updat
         const double l11 = std::sqrt(d11);
         a0 *= 1.0 / l00;
         a1 = (a1 - l10 * a0) * (1.0 / l11);
-        e0 = r0 / l00;
-        e1 = (r1 - l10 * e0) / l11;
+        eb[0] = r0 / l00;
+        eb[1] = (r1 - l10 * eb[0]) / l11;
       }
       // A non-finite Jacobian entry makes its row of A = H G non-finite (Inf * 0 is NaN), so the
       // squared norms check the input (no separate pass over J).
       const double s00 = 1.0 + a0.squaredNorm(), s11 = 1.0 + a1.squaredNorm();
       if (!std::isfinite(s00 + s11)) return nonFinite(st);
       if (gating) {
-        const double s01 = a0.dot(a1);
-        const double d2 = (s11 * e0 * e0 - 2.0 * s01 * e0 * e1 + s00 * e1 * e1) / (s00 * s11 - s01 * s01);
-        if (!(d2 <= w.gate)) {
-          st->gated_mask[b] = 1;
-          ++st->gated;
-          continue;
-        }
+        const double s01 = a0.dot(a1), e0 = eb[0], e1 = eb[1];
+        d2 = (s11 * e0 * e0 - 2.0 * s01 * e0 * e1 + s00 * e1 * e1) / (s00 * s11 - s01 * s01);
       }
-      if (k != b) w.A.middleRows<2>(2 * k) = w.A.middleRows<2>(2 * b);
-      w.e[2 * k] = e0;
-      w.e[2 * k + 1] = e1;
-      ss += r0 * r0 + r1 * r1;
-      w.used.push_back(b);
-      ++k;
-      continue;
-    }
-    const Mat Rb = batch.R.block(b * bd, 0, bd, bd);
-    if (!Rb.allFinite() || !batch.residual.segment(b * bd, bd).allFinite() || !w.A.middleRows(b * bd, bd).allFinite())
-      return nonFinite(st);
-    const Eigen::LLT<Mat> rl(Rb);
-    if (rl.info() != Eigen::Success) {
-      st->health |= kBadMeasurementCovariance;
-      return false;
-    }
-    const Vec rb = batch.residual.segment(b * bd, bd);
-    auto Ab = w.A.middleRows(b * bd, bd);
-    rl.matrixL().solveInPlace(Ab);
-    const Vec eb = rl.matrixL().solve(rb);
-    if (gating) {
-      Mat S = Mat::Identity(bd, bd);
-      S.noalias() += Ab * Ab.transpose();
-      double d2;
-      {
+    } else {
+      const Mat Rb = batch.R.block(b * bd, 0, bd, bd);
+      if (!Rb.allFinite() || !batch.residual.segment(b * bd, bd).allFinite() || !w.A.middleRows(b * bd, bd).allFinite())
+        return nonFinite(st);
+      const Eigen::LLT<Mat> rl(Rb);
+      if (rl.info() != Eigen::Success) {
+        st->health |= kBadMeasurementCovariance;
+        return false;
+      }
+      auto Ab = w.A.middleRows(b * bd, bd);
+      rl.matrixL().solveInPlace(Ab);
+      eb = rl.matrixL().solve(Vec(batch.residual.segment(b * bd, bd)));
+      if (gating) {
+        Mat S = Mat::Identity(bd, bd);
+        S.noalias() += Ab * Ab.transpose();
         const Eigen::LLT<Mat> sl(S);
         d2 = sl.info() == Eigen::Success ? eb.dot(sl.solve(eb)) : HUGE_VAL;
       }
-      if (!(d2 <= w.gate)) {
-        st->gated_mask[b] = 1;
-        ++st->gated;
-        continue;
-      }
+    }
+    if (gating && !(d2 <= w.gate)) {
+      st->gated_mask[b] = 1;
+      ++st->gated;
+      continue;
     }
     if (k != b) w.A.middleRows(k * bd, bd) = w.A.middleRows(b * bd, bd);
     w.e.segment(k * bd, bd) = eb;
-    ss += rb.squaredNorm();
-    w.used.push_back(b);
+    ss += batch.residual.segment(b * bd, bd).squaredNorm();
     ++k;
   }
   st->used = k;

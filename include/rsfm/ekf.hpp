@@ -199,7 +199,6 @@ class Ekf {
     RowMatrixXd Gc;              ///< Gx's rows of the batch's columns (blocks with the same columns)
     RowMatrixXd A;               ///< per block: L_b^-1 H_b G (whitened; accepted blocks first)
     Eigen::VectorXd e;           ///< per block: L_b^-1 r_b (accepted blocks first)
-    std::vector<int> used;       ///< accepted blocks
     Eigen::MatrixXd M;           ///< I + A^T A (information form)
     Eigen::LLT<Eigen::MatrixXd> mllt;
     Eigen::VectorXd g, y, dx;
