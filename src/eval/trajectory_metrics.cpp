@@ -92,6 +92,7 @@ RpeResult relativePoseError(const std::vector<Pose>& est, const std::vector<Pose
   std::vector<double> et, er;
   std::size_t j = 0;
   for (std::size_t i = 0; i < frame.size(); ++i) {
+    if (delta > std::numeric_limits<long long>::max() - frame[i]) break;  // no frame that far ahead (no overflow)
     const long long want = frame[i] + delta;
     if (j < i) j = i;
     while (j < frame.size() && frame[j] < want) ++j;

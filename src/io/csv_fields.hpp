@@ -2,7 +2,10 @@
 // Field parsing shared by the CSV readers of rsfm/io (internal header).
 #include <fmt/format.h>
 
+#include <array>
 #include <charconv>
+#include <limits>
+#include <type_traits>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -51,9 +54,69 @@ inline std::ifstream openCsv(const std::filesystem::path& file, const char* what
   std::error_code ec;
   if (!std::filesystem::exists(file, ec)) throw inputError(file, 0, "no such file");
   if (std::filesystem::is_directory(file, ec)) throw inputError(file, 0, fmt::format("is a directory, not a {} file", what));
-  std::ifstream in(file);
+  std::ifstream in(file, std::ios::binary);
   if (!in) throw inputError(file, 0, "cannot be opened");
   return in;
+}
+
+/// The longest line a reader accepts (bytes, without the newline). The longest legitimate line
+/// of rsfm's text formats is a '# source PATH' header, and a path is at most PATH_MAX = 4096
+/// bytes; anything longer is not one of these files (issue 17: /dev/zero grew without bound).
+inline constexpr std::size_t kMaxLineBytes = 8192;
+
+enum class LineRead { kLine, kEnd, kTooLong };
+
+/// std::getline with a length limit: reads up to '\n' (dropped, as is a '\r' before it) into
+/// `line`; kTooLong as soon as the line exceeds `max_bytes` (the rest is not read).
+inline LineRead boundedGetline(std::istream& in, std::string& line, std::size_t max_bytes = kMaxLineBytes) {
+  line.clear();
+  std::streambuf* sb = in.rdbuf();
+  if (!sb) return LineRead::kEnd;
+  bool any = false;
+  for (;;) {
+    const int c = sb->sbumpc();
+    if (c == std::char_traits<char>::eof()) {
+      in.setstate(std::ios::eofbit);
+      if (!line.empty() && line.back() == '\r') line.pop_back();
+      return any ? LineRead::kLine : LineRead::kEnd;
+    }
+    any = true;
+    if (c == '\n') break;
+    if (line.size() >= max_bytes) return LineRead::kTooLong;
+    line.push_back(static_cast<char>(c));
+  }
+  if (!line.empty() && line.back() == '\r') line.pop_back();
+  return LineRead::kLine;
+}
+
+/// Image sizes a header may declare: at most 2^20 px a side and 2^30 px in all, OpenCV's own
+/// limits for an image it decodes (CV_IO_MAX_IMAGE_WIDTH/HEIGHT/PIXELS): no video rsfm can
+/// track is larger (issue 17: image_size 1e8 1e8 was accepted).
+inline constexpr long long kMaxImageSide = 1LL << 20;
+inline constexpr long long kMaxImagePixels = 1LL << 30;
+
+/// Frame numbers are int end to end (tracks, filters, TUM timestamps): larger ones are refused.
+inline constexpr long long kMaxFrame = std::numeric_limits<int>::max();
+
+/// The numbers of a '#' header line after its key: exactly `n` of them, nothing after.
+template <class T, std::size_t n>
+bool headerNumbers(std::istringstream& ss, std::array<T, n>* out) {
+  std::string tok;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!(ss >> tok)) return false;
+    bool ok;
+    if constexpr (std::is_integral_v<T>) {
+      long long v = 0;
+      ok = parseInt(tok, &v);
+      (*out)[i] = static_cast<T>(v);
+    } else {
+      double v = 0;
+      ok = parseDouble(tok, &v) && std::isfinite(v);
+      (*out)[i] = v;
+    }
+    if (!ok) return false;
+  }
+  return !(ss >> tok);
 }
 
 /// Writes the shared '#' header lines (the caller adds format-specific ones and the columns).
@@ -83,24 +146,35 @@ struct CsvHeader {
   /// key is not one of the shared ones (the caller may handle it). Throws InputError.
   bool parse(const std::string& key, std::istringstream& ss, const std::filesystem::path& file, int ln) {
     if (!version) {
-      int v = 0;
-      if (key != magic || !(ss >> v))
+      std::array<long long, 1> v{};
+      if (key != magic || !headerNumbers(ss, &v))
         throw inputError(file, ln, fmt::format("not an rsfm {} file (first line must be '# {} 1')", name(), magic));
-      if (v != 1) throw inputError(file, ln, fmt::format("unsupported {} format version {} (this rsfm reads 1)", name(), v));
+      if (v[0] != 1) throw inputError(file, ln, fmt::format("unsupported {} format version {} (this rsfm reads 1)", name(), v[0]));
       version = true;
     } else if (key == "image_size") {
-      if (!(ss >> image.width >> image.height) || image.width <= 0 || image.height <= 0)
+      std::array<long long, 2> v{};
+      if (!headerNumbers(ss, &v) || v[0] <= 0 || v[1] <= 0)
         throw inputError(file, ln, "image_size needs two positive integers (width height)");
+      if (v[0] > kMaxImageSide || v[1] > kMaxImageSide || v[0] * v[1] > kMaxImagePixels)
+        throw inputError(file, ln, fmt::format("image_size {}x{} is larger than any image OpenCV decodes (2^20 px a side, "
+                                               "2^30 px in all)", v[0], v[1]));
+      image.width = static_cast<int>(v[0]);
+      image.height = static_cast<int>(v[1]);
       size = true;
     } else if (key == "principal_point") {
-      if (!(ss >> image.cx >> image.cy) || !std::isfinite(image.cx) || !std::isfinite(image.cy))
-        throw inputError(file, ln, "principal_point needs two finite numbers (cx cy)");
+      std::array<double, 2> v{};
+      if (!headerNumbers(ss, &v)) throw inputError(file, ln, "principal_point needs two finite numbers (cx cy)");
+      image.cx = v[0];
+      image.cy = v[1];
       pp = true;
     } else if (key == "frames") {
-      long long a = 0, b = 0;
-      if (!(ss >> a >> b) || a < 0 || b < a) throw inputError(file, ln, "frames needs first <= last, both >= 0");
-      first_frame = static_cast<int>(a);
-      last_frame = b;
+      std::array<long long, 2> v{};
+      if (!headerNumbers(ss, &v) || v[0] < 0 || v[1] < v[0])
+        throw inputError(file, ln, "frames needs two integers FIRST <= LAST, both >= 0");
+      if (v[1] > kMaxFrame)
+        throw inputError(file, ln, fmt::format("frame numbers above {} are not supported (got {})", kMaxFrame, v[1]));
+      first_frame = static_cast<int>(v[0]);
+      last_frame = v[1];
       frames = true;
     } else if (key == "source") {
       std::getline(ss >> std::ws, source);
@@ -112,6 +186,8 @@ struct CsvHeader {
 
   /// At the first non-'#' line: the required keys must have come; defaults the principal point.
   void finish(const std::filesystem::path& file, int ln) {
+    if (pp && (std::abs(image.cx) > 2.0 * kMaxImageSide || std::abs(image.cy) > 2.0 * kMaxImageSide))
+      throw inputError(file, ln, fmt::format("principal_point ({}, {}) is far outside any image", image.cx, image.cy));
     if (!version) throw inputError(file, ln, fmt::format("not an rsfm {} file (first line must be '# {} 1')", name(), magic));
     if (!size) throw inputError(file, ln, "missing '# image_size W H' header line");
     if (!frames) throw inputError(file, ln, "missing '# frames FIRST LAST' header line");
@@ -119,38 +195,45 @@ struct CsvHeader {
   }
 };
 
-/// The reading loop shared by tracks.csv and patches.csv (docs/tracks.md): '#' header lines
-/// (the shared keys, then `extra_key(key, stream, line)` for a format's own, which returns false
-/// for a comment), `begin(line)` once the header is complete, the column line `columns`, then per
-/// row: the field count, the frame and the id (`id_name`: "track" / "patch"), `values(fields,
-/// line)` (the format's own fields; throws), the frame within the declared range and rows in
-/// frame order with increasing ids, and `store(frame, id)`. Every problem is an InputError
-/// "FILE:LINE: ...".
+/// The reading loop shared by tracks.csv and patches.csv (docs/tracks.md), on `in` (named `file`
+/// in messages): '#' header lines (the shared keys, then `extra_key(key, stream, line)` for a
+/// format's own, which returns false for a comment), `begin(line)` once the header is complete,
+/// the column line `columns`, then per row: the field count, the frame and the id (`id_name`:
+/// "track" / "patch"), `values(fields, line)` (the format's own fields; throws), the frame within
+/// the declared range and rows in frame order with increasing ids, and `store(frame, id, line)`.
+/// After the last row, the limits that follow from the data present (issue 17): the declared
+/// frame range may not exceed the number of rows (memory follows the file, not its header), and
+/// ids stay below max(2^20, 16 x rows). Every problem is an InputError "FILE:LINE: ...".
 template <class ExtraKey, class Begin, class Values, class Store>
-void readRsfmCsv(const std::filesystem::path& file, CsvHeader& head, const std::string& columns, std::size_t fields,
-                 const char* id_name, const ExtraKey& extra_key, const Begin& begin, const Values& values,
+void readRsfmCsv(std::istream& in, const std::filesystem::path& file, CsvHeader& head, const std::string& columns,
+                 std::size_t fields, const char* id_name, const ExtraKey& extra_key, const Begin& begin, const Values& values,
                  const Store& store) {
-  std::ifstream in = openCsv(file, head.name().c_str());
   std::string line;
-  int ln = 0;
+  long long ln = 0;
   bool have_columns = false;
-  long long cur_frame = -1, cur_id = -1;
-  std::size_t rows = 0;
-  while (std::getline(in, line)) {
+  long long cur_frame = -1, cur_id = -1, max_id = -1, max_id_line = 0;
+  long long rows = 0;
+  for (;;) {
+    const LineRead r = boundedGetline(in, line);
+    if (r == LineRead::kEnd) break;
     ++ln;
-    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (ln > std::numeric_limits<int>::max()) throw inputError(file, ln, "more lines than this reader counts (2^31)");
+    if (r == LineRead::kTooLong)
+      throw inputError(file, ln, fmt::format("line longer than {} bytes: not an rsfm {} file", kMaxLineBytes, head.name()));
     if (line.empty()) continue;
     if (!have_columns) {
       if (line[0] == '#') {
         std::istringstream ss(line.substr(1));
         std::string key;
         ss >> key;
-        if (!key.empty() && !head.parse(key, ss, file, ln)) extra_key(key, ss, ln);  // unknown keys are comments
+        if (!key.empty() && !head.parse(key, ss, file, static_cast<int>(ln)))
+          extra_key(key, ss, static_cast<int>(ln));  // unknown keys are comments
         continue;
       }
-      head.finish(file, ln);
-      begin(ln);
-      if (line != columns) throw inputError(file, ln, fmt::format("expected the column header '{}', got '{}'", columns, line));
+      head.finish(file, static_cast<int>(ln));
+      begin(static_cast<int>(ln));
+      if (line != columns)
+        throw inputError(file, ln, fmt::format("expected the column header '{}', got '{}'", columns, printable(line)));
       have_columns = true;
       continue;
     }
@@ -159,22 +242,35 @@ void readRsfmCsv(const std::filesystem::path& file, CsvHeader& head, const std::
     long long fr = 0, id = 0;
     if (!parseInt(f[0], &fr)) throw inputError(file, ln, "frame is not an integer");
     if (!parseInt(f[1], &id)) throw inputError(file, ln, fmt::format("{} id is not an integer", id_name));
-    values(f, ln);
+    values(f, static_cast<int>(ln));
     if (fr < head.first_frame || fr > head.last_frame)
       throw inputError(file, ln, fmt::format("frame {} outside the declared range {}..{}", fr, head.first_frame, head.last_frame));
-    if (id < 0 || id > 100000000) throw inputError(file, ln, fmt::format("{} id {} out of range", id_name, id));
+    if (id < 0 || id > std::numeric_limits<int>::max() - 1) throw inputError(file, ln, fmt::format("{} id {} out of range", id_name, id));
     if (fr < cur_frame) throw inputError(file, ln, fmt::format("frame {} after frame {}: rows must be in frame order", fr, cur_frame));
     if (fr == cur_frame && id <= cur_id)
       throw inputError(file, ln, fmt::format("{} {} repeated or out of order in frame {}", id_name, id, fr));
     cur_frame = fr;
     cur_id = id;
-    store(fr, id, ln);
+    if (id > max_id) {
+      max_id = id;
+      max_id_line = ln;
+    }
+    store(fr, id, static_cast<int>(ln));
     ++rows;
   }
   if (in.bad()) throw inputError(file, ln, "read error");
   if (!head.version) throw inputError(file, 0, fmt::format("empty file (not an rsfm {} file)", head.name()));
   if (!have_columns) throw inputError(file, ln, fmt::format("no column header '{}'", columns));
   if (rows == 0) throw inputError(file, ln, fmt::format("no {} rows", id_name));
+  const long long declared = head.last_frame - head.first_frame + 1;
+  if (declared > rows)
+    throw inputError(file, 0, fmt::format("the header declares {} frames ({}..{}) but the file has only {} row{}: most frames "
+                                          "would be empty (a wrong '# frames' line?)",
+                                          declared, head.first_frame, head.last_frame, rows, rows == 1 ? "" : "s"));
+  const long long id_limit = std::max<long long>(1LL << 20, 16 * rows);
+  if (max_id >= id_limit)
+    throw inputError(file, max_id_line, fmt::format("{} id {} too large for a file of {} rows (ids must stay below "
+                                                    "max(2^20, 16 x rows) = {})", id_name, max_id, rows, id_limit));
 }
 
 }  // namespace rsfm::io::detail

@@ -15,7 +15,12 @@ nlohmann::json parseJsonText(const std::string& text, const std::string& source)
       if (text[i] == '\n') ++line;
     std::string msg = e.what();
     if (auto p = msg.find("syntax error"); p != std::string::npos) msg = msg.substr(p);
-    throw InputError(fmt::format("{}:{}: invalid JSON: {}", source, line, msg));
+    throw InputError(fmt::format("{}:{}: invalid JSON: {}", printable(source, 300), line, printable(msg, 200)));
+  } catch (const nlohmann::json::exception& e) {
+    // e.g. out_of_range.406 "number overflow parsing '1e999'" (issue 17: was a raw exception)
+    std::string msg = e.what();
+    if (auto p = msg.find("] "); p != std::string::npos) msg = msg.substr(p + 2);
+    throw InputError(fmt::format("{}: invalid JSON: {}", printable(source, 300), printable(msg, 200)));
   }
 }
 

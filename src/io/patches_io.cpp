@@ -43,26 +43,32 @@ std::string patchesToString(const PatchTracks& t) {
   return os.str();
 }
 
-PatchTracks readPatches(const std::filesystem::path& file) {
+PatchTracks readPatches(std::istream& in, const std::filesystem::path& file) {
   PatchTracks t;
+  std::vector<std::pair<int, PatchObservation>> rows;  // memory follows the rows, not the header
   detail::CsvHeader head;
   head.magic = "rsfm-patches";
   bool radius = false;
   std::map<long long, Eigen::Vector2d> first_centre;
   double v[11];
   detail::readRsfmCsv(
-      file, head, kColumns, 13, "patch",
+      in, file, head, kColumns, 13, "patch",
       [&](const std::string& key, std::istringstream& ss, int ln) {
         if (key != "radius") return;
-        if (!(ss >> t.radius) || t.radius < 1) throw inputError(file, ln, "radius needs a positive integer");
+        std::array<long long, 1> r{};
+        if (!detail::headerNumbers(ss, &r) || r[0] < 1 || r[0] > detail::kMaxImageSide)
+          throw inputError(file, ln, "radius needs a positive integer (px)");
+        t.radius = static_cast<int>(r[0]);
         radius = true;
       },
       [&](int ln) {
         if (!radius) throw inputError(file, ln, "missing '# radius R' header line");
+        if (2 * t.radius + 1 > std::max(head.image.width, head.image.height))
+          throw inputError(file, ln, fmt::format("radius {} px: a patch wider than the {}x{} image", t.radius, head.image.width,
+                                                 head.image.height));
         t.image = head.image;
         t.first_frame = head.first_frame;
         t.source = head.source;
-        t.frames.resize(static_cast<size_t>(head.last_frame - t.first_frame + 1));
       },
       [&](const std::vector<std::string_view>& f, int ln) {
         static const char* names[11] = {"x0", "y0", "x", "y", "a11", "a12", "a21", "a22", "tx", "ty", "rms"};
@@ -88,9 +94,16 @@ PatchTracks readPatches(const std::filesystem::path& file) {
           throw inputError(file, ln, fmt::format("patch {}'s first-frame centre changed", id));
         if ((p.translation() - Eigen::Vector2d(v[8], v[9])).norm() > 0.01)
           throw inputError(file, ln, "tx, ty disagree with (x, y) - A (x0, y0)");
-        t.frames[static_cast<size_t>(fr - t.first_frame)].push_back(p);
+        rows.emplace_back(static_cast<int>(fr - t.first_frame), p);
       });
+  t.frames.resize(static_cast<size_t>(head.last_frame - t.first_frame + 1));
+  for (const auto& [k, p] : rows) t.frames[static_cast<size_t>(k)].push_back(p);
   return t;
+}
+
+PatchTracks readPatches(const std::filesystem::path& file) {
+  std::ifstream in = detail::openCsv(file, "patches");
+  return readPatches(in, file);
 }
 
 }  // namespace rsfm::io

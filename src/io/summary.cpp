@@ -5,6 +5,8 @@
 #include <fmt/format.h>
 
 #include <cmath>
+#include <cstdint>
+#include <limits>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
@@ -14,9 +16,7 @@ namespace {
 
 using json = nlohmann::json;
 
-[[noreturn]] void bad(const std::filesystem::path& f, const std::string& msg) {
-  throw InputError(f.string() + ": " + msg);
-}
+[[noreturn]] void bad(const std::filesystem::path& f, const std::string& msg) { throw inputError(f, 0, msg); }
 
 double number(const std::filesystem::path& f, const json& j, const std::string& what) {
   if (!j.is_number()) bad(f, what + " must be a number");
@@ -25,8 +25,13 @@ double number(const std::filesystem::path& f, const json& j, const std::string& 
   return v;
 }
 
+/// An int, refused (not truncated) outside int's range (issue 17: 2^32 + 1 was read as 1).
 int integer(const std::filesystem::path& f, const json& j, const std::string& what) {
   if (!j.is_number_integer()) bad(f, what + " must be an integer");
+  const bool fits = j.is_number_unsigned() ? j.get<std::uint64_t>() <= static_cast<std::uint64_t>(std::numeric_limits<int>::max())
+                                           : (j.get<std::int64_t>() >= std::numeric_limits<int>::min() &&
+                                              j.get<std::int64_t>() <= std::numeric_limits<int>::max());
+  if (!fits) bad(f, what + " is out of range (beyond a 32-bit integer)");
   return j.get<int>();
 }
 
@@ -38,11 +43,20 @@ const json& required(const std::filesystem::path& f, const json& o, const char* 
 }  // namespace
 
 Summary readSummary(const std::filesystem::path& file) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(file, ec)) bad(file, "is a directory, not a summary file");
   std::ifstream in(file, std::ios::binary);
-  if (!in) throw InputError(file.string() + ": cannot open summary file");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  const std::string text = ss.str();
+  if (!in) bad(file, "cannot open summary file");
+  // A summary is a few kB; reading stops at kMaxSummaryBytes (no unbounded read of /dev/zero).
+  std::string text(kMaxSummaryBytes + 1, '\0');
+  in.read(text.data(), static_cast<std::streamsize>(text.size()));
+  if (in.bad()) bad(file, "read error");
+  text.resize(static_cast<std::size_t>(in.gcount()));
+  if (text.size() > kMaxSummaryBytes) bad(file, fmt::format("larger than {} MiB: not an rsfm summary", kMaxSummaryBytes >> 20));
+  return readSummaryText(text, file);
+}
+
+Summary readSummaryText(const std::string& text, const std::filesystem::path& file) {
   const json j = parseJsonText(text, file.string());
   if (!j.is_object()) bad(file, "top level must be a JSON object");
   Summary s;
@@ -102,6 +116,7 @@ Summary readSummary(const std::filesystem::path& file) {
       bad(file, "\"plane_names\" must be an array with one name per plane");
     for (const json& n : a) {
       if (!n.is_string()) bad(file, "\"plane_names\" entries must be strings");
+      if (n.get_ref<const std::string&>().size() > 1000) bad(file, "\"plane_names\" entries must be at most 1000 bytes");
       s.plane_names.push_back(n.get<std::string>());
     }
   }

@@ -35,18 +35,22 @@ std::string tracksToString(const Tracks& t) {
 }
 
 
-Tracks readTracks(const std::filesystem::path& file) {
+Tracks readTracks(std::istream& in, const std::filesystem::path& file) {
   Tracks t;
   detail::CsvHeader head;
   head.magic = "rsfm-tracks";
   double x = 0, y = 0;
+  struct Row {
+    int frame;
+    TrackPoint p;
+  };
+  std::vector<Row> rows;  // memory follows the rows, not the header's frame range
   detail::readRsfmCsv(
-      file, head, "frame,track,x,y", 4, "track", [](const std::string&, std::istringstream&, int) {},
+      in, file, head, "frame,track,x,y", 4, "track", [](const std::string&, std::istringstream&, int) {},
       [&](int) {
         t.image = head.image;
         t.first_frame = head.first_frame;
         t.source = head.source;
-        t.frames.resize(static_cast<size_t>(head.last_frame - t.first_frame + 1));
       },
       [&](const std::vector<std::string_view>& f, int ln) {
         if (!parseDouble(f[2], &x) || !parseDouble(f[3], &y)) throw inputError(file, ln, "x or y is not a number");
@@ -55,9 +59,16 @@ Tracks readTracks(const std::filesystem::path& file) {
       [&](long long fr, long long id, int ln) {
         if (x < -t.image.width || x > 2.0 * t.image.width || y < -t.image.height || y > 2.0 * t.image.height)
           throw inputError(file, ln, fmt::format("position ({}, {}) far outside the {}x{} image", x, y, t.image.width, t.image.height));
-        t.frames[static_cast<size_t>(fr - t.first_frame)].push_back({static_cast<int>(id), Eigen::Vector2d(x, y)});
+        rows.push_back({static_cast<int>(fr - t.first_frame), {static_cast<int>(id), Eigen::Vector2d(x, y)}});
       });
+  t.frames.resize(static_cast<size_t>(head.last_frame - t.first_frame + 1));
+  for (const Row& r : rows) t.frames[static_cast<size_t>(r.frame)].push_back(r.p);
   return t;
+}
+
+Tracks readTracks(const std::filesystem::path& file) {
+  std::ifstream in = detail::openCsv(file, "tracks");
+  return readTracks(in, file);
 }
 
 }  // namespace rsfm::io

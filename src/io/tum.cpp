@@ -8,11 +8,13 @@
 #include <sstream>
 #include <string>
 
+#include "csv_fields.hpp"
+
 namespace rsfm::io {
 namespace {
 
-std::string where(const std::filesystem::path& file, int line) {
-  return file.string() + ":" + std::to_string(line) + ": ";
+std::string where(const std::filesystem::path& file, long long line) {
+  return printable(file.string(), 300) + ":" + std::to_string(line) + ": ";
 }
 
 bool parseDouble(const std::string& tok, double* v) {
@@ -26,16 +28,25 @@ bool parseDouble(const std::string& tok, double* v) {
 }  // namespace
 
 std::vector<TumPose> readTum(const std::filesystem::path& file) {
-  std::ifstream in(file);
-  if (!in) throw InputError(file.string() + ": cannot open trajectory file");
+  std::error_code ec;
+  if (std::filesystem::is_directory(file, ec)) throw inputError(file, 0, "is a directory, not a trajectory file");
+  std::ifstream in(file, std::ios::binary);
+  if (!in) throw inputError(file, 0, "cannot open trajectory file");
+  return readTum(in, file);
+}
+
+std::vector<TumPose> readTum(std::istream& in, const std::filesystem::path& file) {
   static const char* kFields[8] = {"t", "tx", "ty", "tz", "qx", "qy", "qz", "qw"};
   std::vector<TumPose> poses;
   std::string line;
-  int n = 0;
-  int prev_line = 0;
-  while (std::getline(in, line)) {
+  long long n = 0;
+  long long prev_line = 0;
+  for (;;) {
+    const detail::LineRead r = detail::boundedGetline(in, line);
+    if (r == detail::LineRead::kEnd) break;
     ++n;
-    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (r == detail::LineRead::kTooLong)
+      throw InputError(where(file, n) + fmt::format("line longer than {} bytes: not a TUM trajectory", detail::kMaxLineBytes));
     const auto first = line.find_first_not_of(" \t");
     if (first == std::string::npos || line[first] == '#') continue;
     std::istringstream ss(line);
@@ -47,9 +58,9 @@ std::vector<TumPose> readTum(const std::filesystem::path& file) {
     double v[8];
     for (int i = 0; i < 8; ++i) {
       if (!parseDouble(tok[i], &v[i]))
-        throw InputError(where(file, n) + fmt::format("field {} ('{}') is not a number", kFields[i], tok[i]));
+        throw InputError(where(file, n) + fmt::format("field {} ('{}') is not a number", kFields[i], printable(tok[i], 40)));
       if (!std::isfinite(v[i]))
-        throw InputError(where(file, n) + fmt::format("field {} is not finite ({})", kFields[i], tok[i]));
+        throw InputError(where(file, n) + fmt::format("field {} is not finite ({})", kFields[i], printable(tok[i], 40)));
     }
     TumPose p;
     p.t = v[0];
@@ -61,13 +72,12 @@ std::vector<TumPose> readTum(const std::filesystem::path& file) {
     p.q.normalize();
     if (!poses.empty() && !(p.t > poses.back().t))
       throw InputError(where(file, n) + fmt::format("timestamp {} is not greater than the previous one ({} on line {})",
-                                                    tok[0], poses.back().t, prev_line));
+                                                    printable(tok[0], 40), poses.back().t, prev_line));
     poses.push_back(p);
     prev_line = n;
   }
-  if (in.bad()) throw InputError(file.string() + ": read error");
-  if (poses.empty())
-    throw InputError(where(file, std::max(n, 1)) + "empty trajectory: no pose lines");
+  if (in.bad()) throw inputError(file, 0, "read error");
+  if (poses.empty()) throw InputError(where(file, std::max(n, 1LL)) + "empty trajectory: no pose lines");
   return poses;
 }
 

@@ -9,6 +9,8 @@
 #include "rsfm/io/atomic_file.hpp"
 #include "rsfm/io/tum.hpp"
 
+#include <limits>
+
 namespace rsfm::report {
 
 using namespace rsfm::io;  // the file formats the reports write
@@ -18,11 +20,15 @@ namespace {
 std::map<long long, TumPose> byFrame(const fs::path& file, const std::vector<TumPose>& poses) {
   std::map<long long, TumPose> m;
   for (const TumPose& p : poses) {
+    // Frame numbers are exact integers in rsfm's TUM files ("12", or "12.000000" from other
+    // tools); two timestamps may not name one frame (issue 17: t = 1e-10 merged with frame 0).
     const double r = std::round(p.t);
-    if (std::abs(p.t - r) > 1e-9 || std::abs(r) > 1e15)
-      throw InputError(fmt::format("{}: timestamp {} is not a frame number (rsfm TUM files use integer frame indices)",
-                                   file.string(), p.t));
-    m[static_cast<long long>(r)] = p;
+    if (std::abs(p.t - r) > 1e-6 || r < 0 || r > std::numeric_limits<int>::max())
+      throw InputError(fmt::format("{}: timestamp {} is not a frame number from 0 to 2^31 - 1 (rsfm TUM files use integer "
+                                   "frame indices)", printable(file.string(), 300), p.t));
+    if (!m.emplace(static_cast<long long>(r), p).second)
+      throw InputError(fmt::format("{}: timestamp {} is frame {} again (an earlier line has that frame number)",
+                                   printable(file.string(), 300), p.t, static_cast<long long>(r)));
   }
   return m;
 }
@@ -79,9 +85,19 @@ Evaluation evaluateDirectories(const fs::path& estimate_dir, const fs::path& tru
   if (e.matched < 3)
     throw InputError(fmt::format("{}: only {} pose{} share a frame number with {} (need at least 3)", et.string(),
                                  e.matched, e.matched == 1 ? "" : "s", tt.string()));
+  // A Sim(3) alignment needs the camera centres of both trajectories to spread: name the file
+  // whose centres do not (issue 17: a still truth was blamed on the estimate).
+  for (const auto& [traj, file] : {std::pair{&E, &et}, std::pair{&T, &tt}}) {
+    double spread = 0;
+    for (const auto& p : *traj) spread = std::max(spread, (p.p - traj->front().p).norm());
+    if (!(spread > 0))
+      throw InputError(fmt::format("{}: cannot align: its camera centres are all equal over the {} matched frames (no "
+                                   "translation: a Sim(3) alignment and the ATE need a moving camera)",
+                                   printable(file->string(), 300), e.matched));
+  }
   e.ate = eval::absoluteTrajectoryError(E, T, true);
   if (!e.ate.alignment.ok)
-    throw InputError(fmt::format("{}: cannot align: the estimated camera centres are all equal", et.string()));
+    throw std::runtime_error(fmt::format("{}: the Sim(3) alignment with {} failed (numerical trouble)", et.string(), tt.string()));
   const auto& sv = e.ate.alignment.singular_values;
   if (sv(1) < 1e-9 * sv(0))
     e.notes.push_back("the trajectories are (nearly) collinear: the alignment's rotation about their axis is undetermined");

@@ -1,9 +1,12 @@
 #pragma once
 // Bad input (malformed file, missing frame, wrong size, NaN): one exception type whose message is
-// one line naming the problem, "FILE:LINE: problem" where there is a line.
+// one line naming the problem, "FILE:LINE: problem" where there is a line. Text taken from the
+// input is never echoed raw: `printable()` escapes control and non-ASCII bytes and shortens it.
+#include <cstddef>
 #include <filesystem>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 
 namespace rsfm::io {
 
@@ -12,9 +15,32 @@ class InputError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-/// "FILE:LINE: msg" (line <= 0: "FILE: msg").
-inline InputError inputError(const std::filesystem::path& file, int line, const std::string& msg) {
-  std::string s = file.string();
+/// `s` safe to print on one terminal line: bytes outside printable ASCII become \xNN, and text
+/// longer than `max_chars` is cut with "..." (issue 17: raw ESC sequences and 20 MB lines were
+/// echoed).
+inline std::string printable(std::string_view s, std::size_t max_chars = 80) {
+  static const char* hex = "0123456789abcdef";
+  std::string out;
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    if (out.size() >= max_chars) {
+      out += "...";
+      break;
+    }
+    const auto c = static_cast<unsigned char>(s[i]);
+    if (c >= 0x20 && c < 0x7f) {
+      out += static_cast<char>(c);
+    } else {
+      out += "\\x";
+      out += hex[c >> 4];
+      out += hex[c & 15];
+    }
+  }
+  return out;
+}
+
+/// "FILE:LINE: msg" (line <= 0: "FILE: msg"); the file name made printable.
+inline InputError inputError(const std::filesystem::path& file, long long line, const std::string& msg) {
+  std::string s = printable(file.string(), 300);
   if (line > 0) {
     s += ':';
     s += std::to_string(line);

@@ -31,5 +31,10 @@ std::string patchesToString(const PatchTracks& t);
 /// non-positive determinant, a first-frame centre that changes between rows of one patch, a
 /// translation that disagrees with (x, y) - A (x0, y0) by more than 0.01 px, or no rows at all.
 PatchTracks readPatches(const std::filesystem::path& file);
+/// The same from a stream (`file` names it in messages). Limits (issue 17, docs/tracks.md): lines
+/// of at most 8192 bytes, image sizes OpenCV can decode (2^20 px a side, 2^30 px), frame numbers
+/// up to 2^31 - 1, a declared frame range no longer than the number of rows, ids below
+/// max(2^20, 16 x rows).
+PatchTracks readPatches(std::istream& in, const std::filesystem::path& file);
 
 }  // namespace rsfm::io

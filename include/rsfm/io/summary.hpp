@@ -54,6 +54,10 @@ struct Summary {
 /// Reads and checks a summary.json. Throws InputError ("FILE:LINE: ..." for JSON syntax errors,
 /// "FILE: ..." for a missing or invalid key).
 Summary readSummary(const std::filesystem::path& file);
+/// The same from the file's text (`file` names it in messages).
+Summary readSummaryText(const std::string& text, const std::filesystem::path& file);
+/// The largest summary.json read (bytes): a summary is a few kB.
+inline constexpr std::size_t kMaxSummaryBytes = 16u << 20;
 
 /// The JSON text (2-space indented, keys in the schema's order; optional parts omitted when empty).
 std::string summaryToJson(const Summary& s);

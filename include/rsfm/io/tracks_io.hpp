@@ -26,5 +26,10 @@ std::string tracksToString(const Tracks& t);
 /// declared range or out of order, a negative or repeated track id within a frame, a position
 /// more than one image outside the image, or no rows at all.
 Tracks readTracks(const std::filesystem::path& file);
+/// The same from a stream (`file` names it in messages). Limits (issue 17, docs/tracks.md): lines
+/// of at most 8192 bytes, image sizes OpenCV can decode (2^20 px a side, 2^30 px), frame numbers
+/// up to 2^31 - 1, a declared frame range no longer than the number of rows, ids below
+/// max(2^20, 16 x rows).
+Tracks readTracks(std::istream& in, const std::filesystem::path& file);
 
 }  // namespace rsfm::io

@@ -30,6 +30,8 @@ struct TumPose {
 /// timestamps, or an empty file (then LINE is the file's last line, or 1). A file that cannot be
 /// opened gives "FILE: cannot open ...". Quaternions are returned normalized.
 std::vector<TumPose> readTum(const std::filesystem::path& file);
+/// The same from a stream (`file` names it in messages); lines of at most 8192 bytes.
+std::vector<TumPose> readTum(std::istream& in, const std::filesystem::path& file);
 
 /// Writes one line per pose with full double precision (shortest round-trip form), q normalized
 /// with w >= 0, after a '#' header line stating the convention above.
