@@ -7,7 +7,7 @@ BUILD ?= build
 OUT ?= out
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 
-.PHONY: all deps configure build demo experiments regimes test test-sanitize bench clean
+.PHONY: all deps configure build demo experiments regimes test test-sanitize fuzz-build fuzz bench clean
 
 all: build
 
@@ -46,6 +46,17 @@ test-sanitize: deps
 	cmake --build $(BUILD)-sanitize -j$(JOBS)
 	cd $(BUILD)-sanitize && ASAN_OPTIONS=detect_leaks=0:abort_on_error=0 UBSAN_OPTIONS=print_stacktrace=1 \
 	  ctest --output-on-failure -j$(JOBS)
+
+# libFuzzer on every reader (issue 17; tests/fuzz/README.md): clang builds the fuzz targets in
+# $(BUILD)-fuzz, then each runs FUZZ_SECONDS (default 60). `make test` replays their corpora.
+FUZZ_SECONDS ?= 60
+fuzz-build: deps
+	command -v clang++ >/dev/null 2>&1 || apt-get install -y -q --no-install-recommends -o DPkg::Lock::Timeout=600 clang
+	CC=clang CXX=clang++ cmake -S . -B $(BUILD)-fuzz -DCMAKE_BUILD_TYPE=Release -DRSFM_FUZZ=ON -DRSFM_BUILD_BENCH=OFF
+	cmake --build $(BUILD)-fuzz -j$(JOBS) --target rsfm_fuzz_all
+
+fuzz: fuzz-build
+	bash tests/fuzz/run.sh $(BUILD)-fuzz $(FUZZ_SECONDS)
 
 bench: build
 	./$(BUILD)/rsfm_bench --benchmark_counters_tabular=true

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <Eigen/LU>
+#include <charconv>
 #include <cmath>
 #include <fstream>
 #include <map>
@@ -26,9 +27,21 @@ void writePatches(std::ostream& os, const PatchTracks& t) {
   os << fmt::format("# radius {}\n", t.radius);
   os << kColumns << "\n";
   std::string buf;
+  // The warp's translation is derived from the values as written (rounded to 1e-4 px and 1e-7),
+  // so that reading the file back and writing it again gives the same text (tests/fuzz).
+  auto written = [](double v, int decimals) {
+    char s[64];
+    const auto r = std::to_chars(s, s + sizeof s, v, std::chars_format::fixed, decimals);
+    double back = v;
+    std::from_chars(s, r.ptr, back);
+    return back;
+  };
   for (int k = 0; k < t.numFrames(); ++k)
     for (const auto& p : t.frames[k]) {
-      const Eigen::Vector2d tr = p.translation();
+      const Eigen::Vector2d q0(written(p.px0.x(), 4), written(p.px0.y(), 4)), q(written(p.px.x(), 4), written(p.px.y(), 4));
+      Eigen::Matrix2d A;
+      A << written(p.A(0, 0), 7), written(p.A(0, 1), 7), written(p.A(1, 0), 7), written(p.A(1, 1), 7);
+      const Eigen::Vector2d tr = q - A * q0;
       buf.clear();
       fmt::format_to(std::back_inserter(buf), "{},{},{:.4f},{:.4f},{:.4f},{:.4f},{:.7f},{:.7f},{:.7f},{:.7f},{:.4f},{:.4f},{:.4f}\n",
                      t.first_frame + k, p.id, p.px0.x(), p.px0.y(), p.px.x(), p.px.y(), p.A(0, 0), p.A(0, 1), p.A(1, 0),

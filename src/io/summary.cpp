@@ -86,7 +86,9 @@ Summary readSummaryText(const std::string& text, const std::filesystem::path& fi
       if (!pl[i].is_array() || pl[i].size() != 3) bad(file, what + " must be [nx, ny, nz]");
       Eigen::Vector3d n(number(file, pl[i][0], what), number(file, pl[i][1], what), number(file, pl[i][2], what));
       if (std::abs(n.norm() - 1.0) > 1e-3) bad(file, fmt::format("{} is not a unit vector (norm {:.6g})", what, n.norm()));
-      s.planes.push_back(n.normalized());
+      // Normalized unless already unit to 1e-12: a normal rsfm wrote reads back bit for bit
+      // (normalizing a unit vector again can move its last digits: tests/fuzz).
+      s.planes.push_back(std::abs(n.norm() - 1.0) > 1e-12 ? n.normalized() : n);
     }
   }
   auto numberArray = [&](const char* key, auto* out, bool ints) {
@@ -183,7 +185,8 @@ std::string summaryToJson(const Summary& s) {
     dj["crb_focal_rel_sd"] = d.crb_focal_rel_sd ? nlohmann::ordered_json(*d.crb_focal_rel_sd) : nlohmann::ordered_json(nullptr);
     nlohmann::ordered_json a = nlohmann::ordered_json::array();
     for (const auto& v : d.crb_normal_sd_deg) a.push_back(v ? nlohmann::ordered_json(*v) : nlohmann::ordered_json(nullptr));
-    dj["crb_normal_sd_deg"] = a;
+    // One entry per plane, or null when not analysed (the reader accepts nothing else).
+    dj["crb_normal_sd_deg"] = d.crb_normal_sd_deg.empty() ? nlohmann::ordered_json(nullptr) : a;
     o["determinable"] = dj;
   }
   return o.dump(2) + "\n";

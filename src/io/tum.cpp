@@ -69,7 +69,7 @@ std::vector<TumPose> readTum(std::istream& in, const std::filesystem::path& file
     const double norm = p.q.norm();
     if (std::abs(1.0 - norm) > 1e-3)
       throw InputError(where(file, n) + fmt::format("quaternion norm {:.6g} is not 1 (|1 - |q|| > 1e-3)", norm));
-    p.q.normalize();
+    if (std::abs(norm - 1.0) > 1e-12) p.q.normalize();  // a unit q rsfm wrote reads back bit for bit (tests/fuzz)
     if (!poses.empty() && !(p.t > poses.back().t))
       throw InputError(where(file, n) + fmt::format("timestamp {} is not greater than the previous one ({} on line {})",
                                                     printable(tok[0], 40), poses.back().t, prev_line));
@@ -86,7 +86,7 @@ void writeTum(std::ostream& os, const std::vector<TumPose>& poses) {
         "reference (frame 0) camera frame (x right, y down, z forward); q = Hamilton rotation "
         "camera -> reference\n";
   for (const TumPose& p : poses) {
-    Eigen::Quaterniond q = p.q.normalized();
+    Eigen::Quaterniond q = std::abs(p.q.norm() - 1.0) > 1e-12 ? p.q.normalized() : p.q;
     if (q.w() < 0) q.coeffs() = -q.coeffs();
     // "+ 0.0" turns -0 into 0.
     os << fmt::format("{} {} {} {} {} {} {} {}\n", p.t + 0.0, p.p.x() + 0.0, p.p.y() + 0.0, p.p.z() + 0.0,

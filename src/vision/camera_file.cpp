@@ -4,6 +4,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
+#include <cctype>
+#include <fstream>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 
@@ -22,6 +25,12 @@ namespace {
 cv::Mat matrixNode(const cv::FileStorage& fs, const char* name, const std::filesystem::path& f) {
   const cv::FileNode n = fs[name];
   if (n.empty()) bad(f, fmt::format("missing node \"{}\"", name));
+  // The declared size first: OpenCV allocates rows x cols before it reads the data (tests/fuzz:
+  // a 48 GB allocation). rsfm's matrices have at most 14 entries.
+  const cv::FileNode r = n["rows"], c = n["cols"];
+  if (!n.isMap() || !r.isInt() || !c.isInt() || static_cast<int>(r) < 1 || static_cast<int>(c) < 1 ||
+      static_cast<long long>(static_cast<int>(r)) * static_cast<int>(c) > 16)
+    bad(f, fmt::format("\"{}\" is not a small matrix (an opencv-matrix with rows, cols and data)", name));
   cv::Mat m;
   try {
     n >> m;
@@ -41,17 +50,119 @@ int intNode(const cv::FileStorage& fs, const char* name, const std::filesystem::
   return static_cast<int>(v);
 }
 
+CameraCalibration fromStorage(const cv::FileStorage& fs, const std::filesystem::path& file);
+
+/// Checks that XML text is well formed at the tag level before OpenCV's parser sees it: every
+/// tag `<name attr="value" ...>`, `</name>` or `<name .../>` complete and nested, `<?...?>` and
+/// `<!--...-->` closed. OpenCV 4.6's XML FileStorage dereferences null on a truncated tag such
+/// as `<?xml vn=` (tests/fuzz/corpus/camera/finding_opencv_xml_*). Returns "" or the problem.
+std::string xmlProblem(const std::string& t) {
+  auto nameChar = [](char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-' || c == ':' || c == '.'; };
+  std::vector<std::string> open;
+  std::size_t i = 0;
+  const std::size_t n = t.size();
+  while (i < n) {
+    if (t[i] != '<') {
+      ++i;
+      continue;
+    }
+    if (t.compare(i, 4, "<!--") == 0) {
+      const auto e = t.find("-->", i + 4);
+      if (e == std::string::npos) return "unclosed comment";
+      i = e + 3;
+      continue;
+    }
+    const bool decl = t.compare(i, 2, "<?") == 0, close = t.compare(i, 2, "</") == 0;
+    std::size_t j = i + (decl || close ? 2 : 1);
+    const std::size_t name0 = j;
+    while (j < n && nameChar(t[j])) ++j;
+    if (j == name0) return fmt::format("a tag without a name at byte {}", i);
+    const std::string name = t.substr(name0, j - name0);
+    for (;;) {  // attributes: name = "value" | 'value'
+      while (j < n && std::isspace(static_cast<unsigned char>(t[j]))) ++j;
+      if (j >= n) return fmt::format("unclosed tag <{}>", io::printable(name, 40));
+      if (nameChar(t[j])) {
+        while (j < n && nameChar(t[j])) ++j;
+        while (j < n && std::isspace(static_cast<unsigned char>(t[j]))) ++j;
+        if (j >= n || t[j] != '=') return fmt::format("an attribute without a value in <{}>", io::printable(name, 40));
+        ++j;
+        while (j < n && std::isspace(static_cast<unsigned char>(t[j]))) ++j;
+        if (j >= n || (t[j] != '"' && t[j] != '\'')) return fmt::format("an unquoted attribute value in <{}>", io::printable(name, 40));
+        const auto e = t.find(t[j], j + 1);
+        if (e == std::string::npos) return fmt::format("an unclosed attribute value in <{}>", io::printable(name, 40));
+        j = e + 1;
+        continue;
+      }
+      break;
+    }
+    if (decl) {
+      if (t.compare(j, 2, "?>") != 0) return fmt::format("unclosed declaration <?{}", io::printable(name, 40));
+      i = j + 2;
+    } else if (close) {
+      if (j >= n || t[j] != '>') return fmt::format("unclosed tag </{}", io::printable(name, 40));
+      if (open.empty() || open.back() != name) return fmt::format("</{}> does not close the open tag", io::printable(name, 40));
+      open.pop_back();
+      i = j + 1;
+    } else if (t.compare(j, 2, "/>") == 0) {
+      i = j + 2;
+    } else if (j < n && t[j] == '>') {
+      open.push_back(name);
+      if (open.size() > 64) return "tags nested deeper than 64";
+      i = j + 1;
+    } else {
+      return fmt::format("unclosed tag <{}>", io::printable(name, 40));
+    }
+  }
+  if (!open.empty()) return fmt::format("<{}> is never closed", io::printable(open.back(), 40));
+  return "";
+}
+
 }  // namespace
 
 CameraCalibration readCameraFile(const std::filesystem::path& file) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(file, ec)) bad(file, "no such file");
+  std::ifstream in(file, std::ios::binary);
+  if (!in) bad(file, "cannot be opened");
+  std::string text(kMaxCameraFileBytes + 1, '\0');
+  in.read(text.data(), static_cast<std::streamsize>(text.size()));
+  if (in.bad()) bad(file, "read error");
+  text.resize(static_cast<std::size_t>(in.gcount()));
+  return readCameraText(text, file);
+}
+
+CameraCalibration readCameraText(const std::string& text, const std::filesystem::path& file) {
+  if (text.size() > kMaxCameraFileBytes) bad(file, fmt::format("larger than {} kB: not a camera file", kMaxCameraFileBytes >> 10));
+  // A calibration is text: control bytes are refused before OpenCV's parser sees them (OpenCV
+  // 4.6's FileStorage crashes on some, e.g. NUL bytes in an XML declaration: tests/fuzz).
+  for (std::size_t i = 0; i < text.size(); ++i) {
+    const auto c = static_cast<unsigned char>(text[i]);
+    if ((c < 0x20 && c != '\t' && c != '\n' && c != '\r') || c == 0x7f)
+      bad(file, fmt::format("not a text file (control byte 0x{:02x} at byte {})", c, i));
+  }
+  if (const auto first = text.find_first_not_of(" \t\r\n"); first != std::string::npos && text[first] == '<')
+    if (const std::string why = xmlProblem(text); !why.empty()) bad(file, "malformed XML: " + why);
   cv::FileStorage fs;
   try {
-    if (!fs.open(file.string(), cv::FileStorage::READ)) bad(file, "not an OpenCV FileStorage YAML/XML file");
-  } catch (const cv::Exception&) {
+    if (text.empty() || !fs.open(text, cv::FileStorage::READ | cv::FileStorage::MEMORY))
+      bad(file, "not an OpenCV FileStorage YAML/XML file");
+  } catch (const io::InputError&) {
+    throw;
+  } catch (const std::exception&) {  // cv::Exception, and std::length_error from OpenCV 4.6's parser (tests/fuzz)
     bad(file, "not an OpenCV FileStorage YAML/XML file (parse error)");
   }
+  try {
+    return fromStorage(fs, file);
+  } catch (const io::InputError&) {
+    throw;
+  } catch (const std::exception&) {
+    bad(file, "malformed OpenCV FileStorage content");
+  }
+}
+
+namespace {
+
+CameraCalibration fromStorage(const cv::FileStorage& fs, const std::filesystem::path& file) {
   CameraCalibration c;
   c.source = file.string();
   c.width = intNode(fs, "image_width", file);
@@ -85,6 +196,8 @@ CameraCalibration readCameraFile(const std::filesystem::path& file) {
   }
   return c;
 }
+
+}  // namespace
 
 Tracks undistortTracks(const Tracks& tracks, const CameraCalibration& cal) {
   if (tracks.image.width != cal.width || tracks.image.height != cal.height)

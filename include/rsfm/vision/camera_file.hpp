@@ -29,6 +29,10 @@ struct CameraCalibration {
 /// OpenCV FileStorage, a missing or malformed node, non-positive or non-square focal lengths, a
 /// principal point outside the image).
 CameraCalibration readCameraFile(const std::filesystem::path& file);
+/// The same from the file's text (YAML, XML or JSON FileStorage; `file` names it in messages).
+CameraCalibration readCameraText(const std::string& text, const std::filesystem::path& file);
+/// The largest camera file read: a calibration is a few hundred bytes.
+inline constexpr std::size_t kMaxCameraFileBytes = 1u << 20;
 
 /// The tracks undistorted onto the ideal pinhole (focal(), cx, cy) of `cal`; throws
 /// io::InputError naming the file when the tracks' image size differs from the calibration's.
