@@ -21,7 +21,24 @@ int guarded(const std::function<void()>& f) {
 }
 
 int fail(int code, const std::string& msg) {
-  fmt::print(stderr, "rsfm: error: {}\n", msg);
+  // One line, always (issue 17): OpenCV's messages end in a newline, others may carry control
+  // bytes from a file; whitespace runs become one space, other control bytes are escaped.
+  std::string one;
+  for (char c : msg) {
+    if (c == '\n' || c == '\r' || c == '\t' || c == ' ') {
+      if (!one.empty() && one.back() != ' ') one += ' ';
+    } else {
+      one += c;
+    }
+  }
+  while (!one.empty() && one.back() == ' ') one.pop_back();
+  std::string safe;
+  for (char c : one) {
+    const auto u = static_cast<unsigned char>(c);
+    if (u < 0x20 || u == 0x7f) safe += fmt::format("\\x{:02x}", u);
+    else safe += c;
+  }
+  fmt::print(stderr, "rsfm: error: {}\n", safe);
   return code;
 }
 

@@ -47,12 +47,10 @@ void addBenchCommands(CLI::App& app, std::vector<Command>& commands) {
         if (!n.empty()) o.only.push_back(n);
     }
     if (int rc = guarded([&] { regimes::checkBenchOptions(o); })) return rc;
-    if (auto m = io::ensureWritableDirectory(o.out); !m.empty()) return fail(kBadInput, m);
-    // The bench's own folders are made anew: no earlier run's files beside this one's.
-    for (const char* d : {"runs", "logs", "reference"}) {
-      std::error_code ec;
-      std::filesystem::remove_all(o.out / d, ec);
-    }
+    // The output directory is replaced whole (io::OutputDir): no earlier run's files beside this one's.
+    io::OutputDir od;
+    if (auto m = od.open(o.out); !m.empty()) return fail(kBadInput, m);
+    o.out = od.path();
     regimes::BenchResult res;
     const bool quiet = st->quiet;
     if (int rc = guarded([&] {
@@ -65,11 +63,12 @@ void addBenchCommands(CLI::App& app, std::vector<Command>& commands) {
           io::writeAllOrNothing({{o.out / "scoreboard.csv", regimes::scoreboardCsv(res)},
                                  {o.out / "scoreboard.md", regimes::scoreboardMarkdown(res, invocation())},
                                  {o.out / "scoreboard.json", regimes::scoreboardJson(res, invocation())}});
+          od.commit();
         }))
       return rc;
     if (!quiet)
       fmt::print(stderr, "bench: {} rows in {:.0f} s; wrote {}/scoreboard.csv, scoreboard.md, scoreboard.json\n",
-                 res.rows.size(), res.seconds, o.out.string());
+                 res.rows.size(), res.seconds, st->out);
     return 0;
   }});
 }

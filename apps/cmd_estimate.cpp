@@ -316,7 +316,8 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
     for (const auto& a : s["angles_between_planes_deg"])
       fmt::print(stderr, ", angle between planes {} and {}: {:.1f} deg{}", a["planes"][0].get<int>(), a["planes"][1].get<int>(),
                  a["angle_deg"].get<double>(), a.contains("determined") && !a["determined"].get<bool>() ? " (not determined)" : "");
-    fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum{}, planes.csv, poses.csv, labels.csv{}{}{}\n", e.out,
+    fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum{}, planes.csv, poses.csv, labels.csv{}{}{}\n",
+               e.shown_out.empty() ? e.out : e.shown_out,
                r.refined.ok ? ", trajectory_online.tum" : "",
                e.plots ? ", motion/normals/focal.png" : "", write_tracks ? ", tracks.csv" : "",
                overlay ? ", overlay.mp4" : "");
@@ -363,7 +364,8 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
                "patch_normals.csv{}{}{}\n",
                res.frames.size(), res.entered, res.joined, res.left, summary["focal_px"].get<double>(),
                summary["focal_sd_px"].get<double>(), ln["within_5deg"].get<int>(),
-               summary["patches"]["live_last_frame"].get<int>(), ln["angle_to_median_deg"]["median"].get<double>(), e.out,
+               summary["patches"]["live_last_frame"].get<int>(), ln["angle_to_median_deg"]["median"].get<double>(),
+               e.shown_out.empty() ? e.out : e.shown_out,
                e.plots ? ", patch_run.png" : "", write_patches ? ", patches.csv" : "", overlay ? ", overlay.mp4" : "");
   }
   return 0;
@@ -388,23 +390,31 @@ void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
       if (!c->patches.empty()) c->e.model = "patches";
       if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);
       if (c->e.patches && c->patches.empty()) return fail(kBadInput, "--model patches needs --patches FILE (rsfm track --patches)");
-      if (auto m = io::ensureWritableDirectory(c->e.out); !m.empty()) return fail(kBadInput, m);
-      if (c->e.patches) {
+      io::OutputDir od;
+      if (auto m = od.open(c->e.out); !m.empty()) return fail(kBadInput, m);
+      EstimateCli e = c->e;
+      e.shown_out = e.out;
+      e.out = od.path().string();
+      int rc = 0;
+      if (e.patches) {
         PatchTracks pt;
         try {
           pt = io::readPatches(c->patches);
         } catch (const std::exception& ex) {
           return fail(kBadInput, ex.what());
         }
-        return patchEstimateAndReport(pt, c->e, {}, t0, false);
+        rc = patchEstimateAndReport(pt, e, {}, t0, false);
+      } else {
+        Tracks tracks;
+        try {
+          tracks = io::readTracks(c->tracks);
+        } catch (const std::exception& ex) {
+          return fail(kBadInput, ex.what());
+        }
+        rc = estimateAndReport(tracks, e, {}, t0, false);
       }
-      Tracks tracks;
-      try {
-        tracks = io::readTracks(c->tracks);
-      } catch (const std::exception& ex) {
-        return fail(kBadInput, ex.what());
-      }
-      return estimateAndReport(tracks, c->e, {}, t0, false);
+      if (rc == 0) rc = guarded([&] { od.commit(); });
+      return rc;
     }});
   }
 }

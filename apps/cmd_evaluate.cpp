@@ -33,10 +33,14 @@ void addEvaluateCommands(CLI::App& app, std::vector<Command>& commands) {
     } catch (const std::exception& err) {
       return fail(kRuntimeFailure, err.what());
     }
-    const std::string out = st->out.empty() ? st->estimate : st->out;
-    if (auto msg = rsfm::io::ensureWritableDirectory(out); !msg.empty()) return fail(kBadInput, msg);
+    // --out: a directory of its own, replaced whole; default: evaluation.json and evaluation.md
+    // added to the estimate's directory (each file all-or-nothing).
+    rsfm::io::OutputDir od;
+    if (!st->out.empty())
+      if (auto msg = od.open(st->out); !msg.empty()) return fail(kBadInput, msg);
     try {
-      rsfm::report::writeEvaluation(e, out, invocation());
+      rsfm::report::writeEvaluation(e, st->out.empty() ? std::filesystem::path(st->estimate) : od.path(), invocation());
+      if (!st->out.empty()) od.commit();
     } catch (const std::exception& err) {
       return fail(kRuntimeFailure, err.what());
     }

@@ -26,7 +26,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
 
   struct Table1Cli {
     rsfm::Table1Options o;
-    std::string out = "out";
+    std::string out = "out/table1";
     std::string reading = "reset";
     bool quiet = false;
   };
@@ -87,7 +87,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   auto* pl = exp->add_subcommand("planes", "multi-plane filters on a box scene vs a batch optimum");
   struct PlanesCli {
     rsfm::PlanesOptions po;
-    std::string out = "out";
+    std::string out = "out/planes";
     std::string reading = "reset";
     bool quiet = false;
   };
@@ -137,7 +137,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   auto* two = exp->add_subcommand("two-object", "independent-motion planes filter on two independently moving planes");
   struct TwoObjectCli {
     rsfm::TwoObjectOptions o;
-    std::string out = "out";
+    std::string out = "out/two-object";
     bool quiet = false;
   };
   auto tws = std::make_shared<TwoObjectCli>();
@@ -166,7 +166,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   auto* pat = exp->add_subcommand("patches", "Calway's affine-patch filter on a moving sphere and on the Table 1 plane");
   struct PatchesCli {
     rsfm::PatchesOptions o;
-    std::string out = "out";
+    std::string out = "out/patches";
     std::string centres = "fused";
     std::vector<double> amplitude, angles;  // the sphere scene's defaults, set below
     bool quiet = false;
@@ -236,7 +236,8 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     if (!rsfm::parseRotationReading(reading, &o.reading))
       return fail(kBadInput, "--reading must be 'rate' or 'reset', got '" + reading + "'");
     if (auto msg = rsfm::validateTable1Options(o); !msg.empty()) return fail(kBadInput, msg);
-    if (auto msg = rsfm::io::ensureWritableDirectory(out); !msg.empty()) return fail(kBadInput, msg);
+    rsfm::io::OutputDir od;
+    if (auto msg = od.open(out); !msg.empty()) return fail(kBadInput, msg);
     if (!quiet) {
       o.progress = progressReporter("table1");
     }
@@ -247,7 +248,8 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
       return fail(1, e.what());
     }
     try {
-      rsfm::report::writeTable1Report(res, out, invocation());
+      rsfm::report::writeTable1Report(res, od.path(), invocation());
+      od.commit();
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }
@@ -269,14 +271,16 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     if (!rsfm::parseRotationReading(preading, &po.reading))
       return fail(kBadInput, "--reading must be 'rate' or 'reset', got '" + preading + "'");
     if (auto msg = rsfm::validatePlanesOptions(po); !msg.empty()) return fail(kBadInput, msg);
-    if (auto msg = rsfm::io::ensureWritableDirectory(pout); !msg.empty()) return fail(kBadInput, msg);
+    rsfm::io::OutputDir od;
+    if (auto msg = od.open(pout); !msg.empty()) return fail(kBadInput, msg);
     if (!pquiet) {
       po.progress = progressReporter("planes");
     }
     rsfm::PlanesResult res;
     try {
       res = rsfm::runPlanes(po);
-      rsfm::report::writePlanesReport(res, pout, invocation());
+      rsfm::report::writePlanesReport(res, od.path(), invocation());
+      od.commit();
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }
@@ -294,12 +298,14 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     if (o.centres == rsfm::PatchCentres::State)
       return fail(kBadInput, "--centres state needs tracked (cumulative) maps; the experiment's measurements are inter-frame maps");
     if (auto msg = rsfm::validatePatchesOptions(o); !msg.empty()) return fail(kBadInput, msg);
-    if (auto msg = rsfm::io::ensureWritableDirectory(pas->out); !msg.empty()) return fail(kBadInput, msg);
+    rsfm::io::OutputDir od;
+    if (auto msg = od.open(pas->out); !msg.empty()) return fail(kBadInput, msg);
     if (!pas->quiet) o.progress = progressReporter("patches");
     rsfm::PatchesResult res;
     try {
       res = rsfm::runPatches(o);
-      rsfm::report::writePatchesReport(res, pas->out, invocation());
+      rsfm::report::writePatchesReport(res, od.path(), invocation());
+      od.commit();
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }
@@ -315,12 +321,14 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   commands.push_back({two, [tws]() -> int {
     auto& o = tws->o;
     if (auto msg = rsfm::validateTwoObjectOptions(o); !msg.empty()) return fail(kBadInput, msg);
-    if (auto msg = rsfm::io::ensureWritableDirectory(tws->out); !msg.empty()) return fail(kBadInput, msg);
+    rsfm::io::OutputDir od;
+    if (auto msg = od.open(tws->out); !msg.empty()) return fail(kBadInput, msg);
     if (!tws->quiet) o.progress = progressReporter("two-object");
     rsfm::TwoObjectResult res;
     try {
       res = rsfm::runTwoObject(o);
-      rsfm::report::writeTwoObjectReport(res, tws->out, invocation());
+      rsfm::report::writeTwoObjectReport(res, od.path(), invocation());
+      od.commit();
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }

@@ -18,14 +18,16 @@ namespace {
 /// Renders `o` into `out` with progress and notes on stderr unless quiet; returns the exit code.
 int renderTo(const render::RenderOptions& o, const std::string& out, bool quiet, const std::string& extra_json = {}) {
   if (auto msg = render::validate(o); !msg.empty()) return fail(kBadInput, msg);
-  if (auto msg = io::ensureWritableDirectory(out); !msg.empty()) return fail(kBadInput, msg);
+  io::OutputDir od;
+  if (auto msg = od.open(out); !msg.empty()) return fail(kBadInput, msg);
   auto progress = quiet ? std::function<void(int, int)>{} : progressReporter("render", "frames");
   auto note = [quiet](const std::string& m) {
     if (!quiet) fmt::print(stderr, "{}\n", m);
   };
   render::RenderResult res;
   try {
-    res = render::writeSequence(o, out, progress, note, extra_json);
+    res = render::writeSequence(o, od.path(), progress, note, extra_json);
+    od.commit();
   } catch (const std::invalid_argument& e) {
     return fail(kBadInput, e.what());
   } catch (const std::exception& e) {
@@ -33,7 +35,7 @@ int renderTo(const render::RenderOptions& o, const std::string& out, bool quiet,
   }
   if (!quiet)
     fmt::print(stderr, "render: {} frames in {:.1f} s; wrote {}, {}/truth/trajectory.tum, summary.json, render.json\n",
-               res.frames, res.seconds, res.video.string(), out);
+               res.frames, res.seconds, (std::filesystem::path(out) / res.video.filename()).string(), out);
   return 0;
 }
 

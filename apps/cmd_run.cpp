@@ -17,6 +17,7 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
       bool overlay = true;
     };
     auto c = std::make_shared<Cli>();
+    c->e.out = "out/run";
     auto* rn = app.add_subcommand("run", "track a video, find planes, estimate and report (the whole chain)");
     rn->add_option("input", c->input, "video file, image pattern (frames/img%04d.png) or folder of images")->required();
     addEstimateOptions(rn, &c->e);
@@ -27,7 +28,12 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
       const double t0 = now();
       if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);
       if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
-      if (auto m = io::ensureWritableDirectory(c->e.out); !m.empty()) return fail(kBadInput, m);
+      io::OutputDir od;
+      if (auto m = od.open(c->e.out); !m.empty()) return fail(kBadInput, m);
+      EstimateCli e = c->e;
+      e.shown_out = e.out;
+      e.out = od.path().string();
+      auto finish = [&](int rc) { return rc == 0 ? guarded([&] { od.commit(); }) : rc; };
       const auto progress = c->e.quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames");
       if (c->e.patches) {
         PatchTracks pt;
@@ -37,7 +43,7 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
           overlay = [&](const PatchRunResult& res, const std::filesystem::path& tmp) {
             vision::writePatchOverlay(c->input, c->t.range, pt, res, tmp);
           };
-        return patchEstimateAndReport(pt, c->e, overlay, t0, true);
+        return finish(patchEstimateAndReport(pt, e, overlay, t0, true));
       }
       Tracks tracks;
       if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
@@ -47,7 +53,7 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
         overlay = [&](const EstimateResult& r, const std::filesystem::path& tmp) {
           vision::writeOverlay(c->input, c->t.range, tracks, r.labels(), r.main(), tmp);
         };
-      return estimateAndReport(tracks, c->e, overlay, t0, true);
+      return finish(estimateAndReport(tracks, e, overlay, t0, true));
     }});
   }
 }

@@ -68,7 +68,7 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
   struct Cli {
     TrackCli t;
     std::string input;
-    std::string out = "out";
+    std::string out = "out/track";
     bool quiet = false;
     bool patches = false;
   };
@@ -84,13 +84,18 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
   tr->add_flag("--quiet", c->quiet, "no progress on stderr");
   commands.push_back({tr, [c]() -> int {
     if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
-    if (auto m = io::ensureWritableDirectory(c->out); !m.empty()) return fail(kBadInput, m);
+    io::OutputDir od;
+    if (auto m = od.open(c->out); !m.empty()) return fail(kBadInput, m);
     const auto progress = c->quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames");
-    const auto out = std::filesystem::path(c->out);
+    const auto out = od.path();
     if (c->patches) {
       PatchTracks pt;
       if (int rc = guarded([&] { pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range, progress); })) return rc;
-      if (int rc = guarded([&] { io::writeAllOrNothing({{out / "patches.csv", io::patchesToString(pt)}}); })) return rc;
+      if (int rc = guarded([&] {
+            io::writeAllOrNothing({{out / "patches.csv", io::patchesToString(pt)}});
+            od.commit();
+          }))
+        return rc;
       if (!c->quiet) {
         int ids = 0;
         for (const auto& f : pt.frames)
@@ -102,7 +107,11 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
     }
     Tracks tracks;
     if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
-    if (int rc = guarded([&] { io::writeAllOrNothing({{out / "tracks.csv", io::tracksToString(tracks)}}); })) return rc;
+    if (int rc = guarded([&] {
+          io::writeAllOrNothing({{out / "tracks.csv", io::tracksToString(tracks)}});
+          od.commit();
+        }))
+      return rc;
     const auto spans = trackSpans(tracks);
     if (!c->quiet)
       fmt::print(stderr, "track: {} frames, {} tracks; wrote {}/tracks.csv\n", tracks.numFrames(), spans.size(), c->out);

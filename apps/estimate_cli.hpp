@@ -31,7 +31,8 @@ struct EstimateCli {
   std::vector<double> principal_point;  ///< --principal-point X,Y
   bool plots = true;
   bool quiet = false;
-  std::string out = "out";
+  std::string out = "out/estimate";  ///< --out: the output directory, replaced whole (io::OutputDir)
+  std::string shown_out;             ///< the directory named in messages (the staging one is written)
 };
 
 void addEstimateOptions(CLI::App* a, EstimateCli* e);

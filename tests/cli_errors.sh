@@ -11,12 +11,17 @@ fail=0
 check() {  # check NAME EXPECTED_CODE DIR -- args...
   local name="$1" want="$2" dir="$3"
   shift 4
+  local existed=0
+  if [ -n "$dir" ] && [ -e "$dir" ]; then existed=1; fi
   "$RSFM" "$@" >"$TMP/out.txt" 2>"$TMP/err.txt"
   local code=$?
   local lines
   lines=$(wc -l <"$TMP/err.txt")
   local leftovers=""
   if [ -n "$dir" ] && [ -d "$dir" ]; then leftovers=$(ls -A "$dir"); fi
+  # A failing command leaves no directory it created and no staging directory (issue 17).
+  if [ -n "$dir" ] && [ $existed -eq 0 ] && [ -e "$dir" ]; then leftovers="$leftovers (created $dir)"; fi
+  if [ -n "$(find "$TMP" -maxdepth 1 -name '.*.rsfm-*')" ]; then leftovers="$leftovers (staging left)"; fi
   if [ "$code" -eq "$want" ] && [ "$lines" -eq 1 ] && grep -q "^rsfm: error: " "$TMP/err.txt" && [ -z "$leftovers" ]; then
     pass=$((pass + 1))
     echo "ok   $name: $(cat "$TMP/err.txt")"

@@ -3,10 +3,12 @@
 #include <fmt/format.h>
 
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <stdexcept>
 
 #include "rsfm/io/atomic_file.hpp"
+#include "rsfm/io/input_error.hpp"
 
 namespace rsfm::report {
 
@@ -46,11 +48,30 @@ void runScript(const std::string& script, const std::vector<std::string>& args) 
     cmd += ' ';
     cmd += shellQuote(a);
   }
-  cmd += " 1>&2";
-  const int rc = std::system(cmd.c_str());
-  if (rc != 0)
-    throw std::runtime_error("figure failed: " + path + " exited with status " + std::to_string(rc) +
-                             " (needs python3-matplotlib; see scripts/install-deps.sh)");
+  cmd += " 2>&1";
+  // The script's output is captured, not echoed: a failure becomes one line (its last line, e.g.
+  // "OSError: [Errno 28] No space left on device"), issue 17. popen, unlike system(), leaves
+  // SIGINT/SIGTERM to rsfm's handlers (io::OutputDir), so an interrupt still cleans up.
+  std::FILE* pipe = ::popen(cmd.c_str(), "r");
+  if (!pipe) throw std::runtime_error("figure failed: cannot start " + pythonInterpreter());
+  std::string out;
+  char buf[4096];
+  for (std::size_t n; (n = std::fread(buf, 1, sizeof buf, pipe)) > 0;) {
+    out.append(buf, n);
+    if (out.size() > (1u << 16)) out.erase(0, out.size() - (1u << 15));  // the tail is what matters
+  }
+  const int status = ::pclose(pipe);
+  if (status == 0) return;
+  std::string last;
+  std::size_t end = out.find_last_not_of(" \t\r\n");
+  if (end != std::string::npos) {
+    const std::size_t begin = out.find_last_of('\n', end);
+    last = out.substr(begin == std::string::npos ? 0 : begin + 1, end + 1 - (begin == std::string::npos ? 0 : begin + 1));
+  }
+  const bool missing = last.find("No module named") != std::string::npos || status == 127 << 8;
+  throw std::runtime_error(fmt::format("figure failed: {}: {}{}", script,
+                                       last.empty() ? fmt::format("exited with status {}", status) : io::printable(last, 200),
+                                       missing ? " (needs python3 with python3-matplotlib; see scripts/install-deps.sh)" : ""));
 }
 
 void runPlotScript(const std::string& script, const std::filesystem::path& data,

@@ -1,3 +1,6 @@
+#include <fmt/format.h>
+
+#include "rsfm/io/input_error.hpp"
 #include "rsfm/vision/klt_tracker.hpp"
 
 #include <algorithm>
@@ -220,7 +223,22 @@ Tracks KltTracker::tracks(int first_frame) const {
 Tracks trackInput(const std::string& input, const TrackerOptions& options, FrameRange range,
                   const std::function<void(int, int)>& progress) {
   KltTracker tracker(options);
-  forEachFrame(input, range, [&](const cv::Mat& img) { tracker.process(img); }, progress);
+  // The smallest frame the tracker works in: a window and the anchoring template inside the
+  // border on both sides (issue 17: 8x8 images and --window 100001 ended in OpenCV assertions).
+  const int need = 2 * (options.border_px + std::max(options.window_px, 2 * options.affine.radius + 1));
+  bool first = true;
+  forEachFrame(
+      input, range,
+      [&](const cv::Mat& img) {
+        if (first && std::min(img.cols, img.rows) < need)
+          throw io::InputError(fmt::format("{}: frames are {}x{} px; tracking with a {} px window, {} px template radius and "
+                                           "{} px border needs at least {}x{}",
+                                           io::printable(input, 300), img.cols, img.rows, options.window_px, options.affine.radius,
+                                           options.border_px, need, need));
+        first = false;
+        tracker.process(img);
+      },
+      progress);
   Tracks t = tracker.tracks(range.first);
   t.source = input;
   return t;

@@ -1,3 +1,6 @@
+#include <fmt/format.h>
+
+#include "rsfm/io/input_error.hpp"
 #include "rsfm/vision/patch_tracker.hpp"
 
 #include <algorithm>
@@ -118,7 +121,21 @@ PatchTracks PatchTracker::tracks(int first_frame) const {
 PatchTracks trackPatchesInput(const std::string& input, const PatchTrackerOptions& options, FrameRange range,
                               const std::function<void(int, int)>& progress) {
   PatchTracker tracker(options);
-  forEachFrame(input, range, [&](const cv::Mat& img) { tracker.process(img); }, progress);
+  // The smallest frame the tracker works in: two patches and the prediction window side by side.
+  const int need = 2 * (2 * options.affine.radius + 1) + options.window_px;
+  bool first = true;
+  forEachFrame(
+      input, range,
+      [&](const cv::Mat& img) {
+        if (first && std::min(img.cols, img.rows) < need)
+          throw io::InputError(fmt::format("{}: frames are {}x{} px; patches of radius {} px with a {} px window need at least "
+                                           "{}x{}",
+                                           io::printable(input, 300), img.cols, img.rows, options.affine.radius,
+                                           options.window_px, need, need));
+        first = false;
+        tracker.process(img);
+      },
+      progress);
   PatchTracks t = tracker.tracks(range.first);
   t.source = input;
   return t;
