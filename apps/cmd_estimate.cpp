@@ -344,6 +344,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
   report::PatchReport rep;
   rep.tracks = &tracks;
   rep.result = &res;
+  rep.motion = &pr.motion;
   rep.command = invocation();
   if (!start_json.is_null()) rep.extra["start"] = start_json;
   nlohmann::json summary;
@@ -356,7 +357,29 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
         files.commit();
       }))
     return rc;
-  if (!e.quiet) {
+  if (!e.quiet && !summary["structure_determined"].get<bool>()) {
+    // One line for what the data do not determine (issue 17), instead of confident numbers.
+    const std::string focal =
+        summary["focal_px"].is_null()
+            ? std::string("focal length not determined") +
+                  (summary.contains("focal_interval_px")
+                       ? fmt::format(" (the data support {:.0f}-{:.0f} px)", summary["focal_interval_px"][0].get<double>(),
+                                     summary["focal_interval_px"][1].get<double>())
+                       : "")
+            : fmt::format("focal {:.1f} +- {:.1f} px (from the motion check)", summary["focal_px"].get<double>(),
+                          summary["focal_sd_px"].get<double>());
+    fmt::print(stderr, "estimate: {} frames, {} patches, {}; patch normals not determined: {}; wrote {}/summary.json, "
+               "trajectory.tum, patch_normals.csv{}{}{}\n",
+               res.frames.size(), res.entered, focal, summary["not_determined_why"].get<std::string>(),
+               e.shown_out.empty() ? e.out : e.shown_out, e.plots ? ", patch_run.png" : "", write_patches ? ", patches.csv" : "",
+               overlay ? ", overlay.mp4" : "");
+  } else if (!e.quiet) {
+    if (summary.contains("patch_filter_focal_z") && summary["patch_filter_focal_z"].is_number() &&
+        std::abs(summary["patch_filter_focal_z"].get<double>()) > 3)
+      fmt::print(stderr, "warning: the patch filter's focal length {:.1f} +- {:.1f} px disagrees with the motion check's "
+                 "({:.1f} sigma); the check's bundle adjustment is reported\n",
+                 summary["patch_filter_focal_px"].get<double>(), summary["patch_filter_focal_sd_px"].get<double>(),
+                 summary["patch_filter_focal_z"].get<double>());
     const auto& ln = summary["last_frame_normals"];
     fmt::print(stderr,
                "estimate: {} frames, {} patches ({} joined, {} left), focal {:.1f} +- {:.1f} px; last frame: {} of {} patch "

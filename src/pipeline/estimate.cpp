@@ -3,12 +3,19 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cmath>
 
 namespace rsfm {
 
 const char* const kFocalGridEndWarning =
     "the start's focal length is at the end of its grid (0.3-3 x max(width, height)): the homographies do not "
     "determine it; consider --focal-px or --focal0-px";
+
+namespace {
+std::string rf_message(const EstimateResult& er) {
+  return er.refined.message.empty() ? std::string("no message") : er.refined.message.substr(0, er.refined.message.find(';'));
+}
+}  // namespace
 
 EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
                         const std::function<void(const std::string&)>& note,
@@ -138,19 +145,55 @@ PatchEstimateResult estimatePatches(const PatchTracks& tracks, const PatchEstima
                                     const std::function<void(int, int)>& progress) {
   PatchEstimateResult r;
   PatchPipelineOptions po = o.patch;
+  // The patch centres as point tracks: the focal start and the motion check work on them.
+  Tracks centres;
+  centres.image = tracks.image;
+  centres.first_frame = tracks.first_frame;
+  for (const auto& f : tracks.frames) {
+    std::vector<TrackPoint> pts;
+    for (const auto& p : f) pts.push_back({p.id, p.px});
+    centres.frames.push_back(std::move(pts));
+  }
+  if (o.motion_check) {
+    // Does the camera translate, does it rotate? The plane pipeline's refinement answers with
+    // likelihood ratios against a pure rotation and a pure translation (pipeline/refine.hpp);
+    // a still sequence is refused here as there ("nothing moves").
+    PatchMotionCheck& m = r.motion;
+    EstimateOptions eo;
+    eo.filter.model = TrackModel::Planes;
+    eo.filter.focal_px = po.focal_px;
+    eo.finder = o.finder;
+    eo.finder.min_plane_tracks = std::min(eo.finder.min_plane_tracks, 8);
+    try {
+      const EstimateResult er = estimate(centres, eo);
+      if (er.refined.ok) {
+        const RefineResult& rf = er.refined;
+        m.checked = true;
+        m.translates = rf.translation_significant;
+        m.focal_determined = rf.focal_determined;
+        const TrackFrame& last = rf.state.frames.back();
+        m.focal_px = rf.state.scale_px / last.beta;
+        m.focal_sd_px = rf.state.scale_px * std::sqrt(std::max(0.0, last.var_beta)) / (last.beta * last.beta);
+        m.focal_interval_px = rf.focal_interval_px;
+        m.rotation_lr = rf.rotation_lr;
+        m.translation_lr = rf.translation_lr;
+        if (!m.translates || !m.focal_determined) m.why = rf.why;
+      } else {
+        m.note = "not conclusive: the check's refinement failed (" + rf_message(er) + ")";
+      }
+    } catch (const NoPlaneFound& ex) {
+      if (std::string(ex.what()).rfind("nothing moves", 0) == 0) throw;
+      m.note = std::string("not run: ") + ex.what();
+    } catch (const std::invalid_argument& ex) {
+      m.note = std::string("not run: ") + ex.what();
+    }
+    if (note && !m.checked) note("motion check: " + m.note);  // a verdict is said once, with the estimate
+  }
   if (o.homography_start && po.focal_px <= 0 && po.focal0_px <= 0) {
     // Focal start as for the plane models: homographies of the patch centres (as point tracks)
     // decomposed over a focal grid (vision/plane_init.hpp). Only the focal length is taken: every
     // patch still starts fronto-parallel, so its normal is the filter's own estimate.
     r.start_tried = true;
-    Tracks centres;
-    centres.image = tracks.image;
-    centres.first_frame = tracks.first_frame;
-    for (const auto& f : tracks.frames) {
-      std::vector<TrackPoint> pts;
-      for (const auto& p : f) pts.push_back({p.id, p.px});
-      centres.frames.push_back(std::move(pts));
-    }
     vision::PlaneStart& start = r.start;
     try {
       vision::PlaneFinderOptions fo = o.finder;

@@ -171,6 +171,10 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
         if (rf.focal_interval_px) j["focal_interval_px"] = {(*rf.focal_interval_px)[0], (*rf.focal_interval_px)[1]};
       }
       j["plane_determined"] = rf.plane_determined;
+      // A plane the data do not determine gets no sd (issue 17: 3.5 deg was reported for a normal
+      // 43 deg off under pure rotation): its normal and distance are the optimum's, for inspection.
+      for (std::size_t i = 0; i < rf.plane_determined.size() && i < j["plane_normal_sd_deg"].size(); ++i)
+        if (!rf.plane_determined[i]) j["plane_normal_sd_deg"][i] = j["plane_distance_sd"][i] = nullptr;
       for (auto& a : j["angles_between_planes_deg"]) {
         const auto pa = a["planes"][0].get<std::size_t>(), pb = a["planes"][1].get<std::size_t>();
         a["determined"] = pa < rf.plane_determined.size() && pb < rf.plane_determined.size() &&

@@ -14,6 +14,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "rsfm/pipeline/motion_check.hpp"
 #include "rsfm/pipeline/patch_pipeline.hpp"
 #include "rsfm/pipeline/refine.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
@@ -80,6 +81,12 @@ struct PatchEstimateOptions {
   /// Start the focal length (unless known or given as focal0_px) from homographies of the patch
   /// centres; every patch still starts fronto-parallel.
   bool homography_start = true;
+  /// The motion check (issue 17): the plane pipeline (estimate() above, its refinement's tests)
+  /// on the patch centres tells whether the camera translates and rotates at all. Calway's
+  /// filter assumes both; on a camera that only turns its normals are not determined and its
+  /// focal length was 170 sigma off (and followed its start), on a nearly affine one its focal
+  /// length and tilts are not determined.
+  bool motion_check = true;
 };
 
 struct PatchEstimateResult {
@@ -87,6 +94,7 @@ struct PatchEstimateResult {
   bool start_tried = false;
   PatchPipelineOptions patch_used;
   PatchRunResult run;        ///< run.ok(): every frame
+  PatchMotionCheck motion;   ///< the motion check (motion.checked: it ran and concluded)
 };
 
 PatchEstimateResult estimatePatches(const PatchTracks& tracks, const PatchEstimateOptions& options,

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "rsfm/io/atomic_file.hpp"
+#include "rsfm/pipeline/motion_check.hpp"
 #include "rsfm/pipeline/patch_pipeline.hpp"
 #include "rsfm/track/patches.hpp"
 
@@ -16,6 +17,7 @@ namespace rsfm::report {
 struct PatchReport {
   const PatchTracks* tracks = nullptr;
   const PatchRunResult* result = nullptr;
+  const PatchMotionCheck* motion = nullptr;  ///< the motion check (may be null: not run)
   std::string command;
   double seconds = 0.0;
   nlohmann::json extra = nlohmann::json::object();
