@@ -5,6 +5,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include <filesystem>
 #include <functional>
 #include <string>
 #include <vector>
@@ -33,6 +34,14 @@ struct Command {
 
 /// The whole command line as typed (recorded in reports).
 const std::string& invocation();
+
+/// The file or folder a video / image-sequence input names (a pattern's folder): an output
+/// directory must not hold it (io::OutputDir replaces its directory whole).
+inline std::filesystem::path inputPath(const std::string& input) {
+  if (input.find('%') == std::string::npos) return input;
+  const std::filesystem::path dir = std::filesystem::path(input).parent_path();
+  return dir.empty() ? std::filesystem::path(".") : dir;
+}
 
 // One registration function per command family (apps/cmd_*.cpp).
 void addExperimentCommands(CLI::App& app, std::vector<Command>& commands);

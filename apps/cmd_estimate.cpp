@@ -414,7 +414,7 @@ void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
       if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);
       if (c->e.patches && c->patches.empty()) return fail(kBadInput, "--model patches needs --patches FILE (rsfm track --patches)");
       io::OutputDir od;
-      if (auto m = od.open(c->e.out); !m.empty()) return fail(kBadInput, m);
+      if (auto m = od.open(c->e.out, {c->tracks, c->patches, c->e.camera_file}); !m.empty()) return fail(kBadInput, m);
       EstimateCli e = c->e;
       e.shown_out = e.out;
       e.out = od.path().string();

@@ -37,7 +37,7 @@ void addEvaluateCommands(CLI::App& app, std::vector<Command>& commands) {
     // added to the estimate's directory (each file all-or-nothing).
     rsfm::io::OutputDir od;
     if (!st->out.empty())
-      if (auto msg = od.open(st->out); !msg.empty()) return fail(kBadInput, msg);
+      if (auto msg = od.open(st->out, {st->estimate, st->truth}); !msg.empty()) return fail(kBadInput, msg);
     try {
       rsfm::report::writeEvaluation(e, st->out.empty() ? std::filesystem::path(st->estimate) : od.path(), invocation());
       if (!st->out.empty()) od.commit();

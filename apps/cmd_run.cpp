@@ -29,7 +29,7 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
       if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);
       if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
       io::OutputDir od;
-      if (auto m = od.open(c->e.out); !m.empty()) return fail(kBadInput, m);
+      if (auto m = od.open(c->e.out, {inputPath(c->input), c->e.camera_file}); !m.empty()) return fail(kBadInput, m);
       EstimateCli e = c->e;
       e.shown_out = e.out;
       e.out = od.path().string();

@@ -85,7 +85,7 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
   commands.push_back({tr, [c]() -> int {
     if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
     io::OutputDir od;
-    if (auto m = od.open(c->out); !m.empty()) return fail(kBadInput, m);
+    if (auto m = od.open(c->out, {inputPath(c->input)}); !m.empty()) return fail(kBadInput, m);
     const auto progress = c->quiet ? std::function<void(int, int)>{} : progressReporter("track", "frames");
     const auto out = od.path();
     if (c->patches) {

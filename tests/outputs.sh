@@ -78,5 +78,19 @@ for cmd in "estimate --tracks $TMP/bad.csv" "track $TMP/bad.mp4" "run $TMP/bad.m
   fi
 done
 
+# An output directory that holds the command's own input is refused (replacing it would delete
+# the input): estimate --tracks D/tracks.csv --out D.
+mkdir -p "$TMP/t"
+printf '# rsfm-tracks 1\n# image_size 640 480\n# frames 0 1\nframe,track,x,y\n0,0,1,1\n1,0,2,1\n' >"$TMP/t/tracks.csv"
+touch "$TMP/t/.rsfm-output"
+before=$(snapshot "$TMP/t")
+"$RSFM" estimate --tracks "$TMP/t/tracks.csv" --out "$TMP/t" 2>"$TMP/err.txt"
+code=$?
+if [ $code -eq 2 ] && grep -q "holds the input" "$TMP/err.txt" && [ "$before" = "$(snapshot "$TMP/t")" ]; then
+  ok "an output directory holding the input is refused: $(cat "$TMP/err.txt")"
+else
+  bad "output holding the input: exit $code, $(cat "$TMP/err.txt")"
+fi
+
 echo "outputs: $pass passed, $fail failed"
 [ "$fail" -eq 0 ]

@@ -205,6 +205,23 @@ void OutputDir::discard() {
   created_parents_.clear();
 }
 
+std::string OutputDir::open(const fs::path& target, const std::vector<fs::path>& inputs) {
+  std::error_code ec;
+  const fs::path t = fs::weakly_canonical(fs::absolute(target, ec), ec);
+  for (const fs::path& in : inputs) {
+    if (in.empty()) continue;
+    const fs::path i = fs::weakly_canonical(fs::absolute(in, ec), ec);
+    // `i` inside `t` (or `t` itself).
+    std::string ts = t.string(), is = i.string();
+    while (ts.size() > 1 && ts.back() == '/') ts.pop_back();
+    const bool inside = is == ts || (is.size() > ts.size() && is.compare(0, ts.size(), ts) == 0 && is[ts.size()] == '/');
+    if (inside)
+      return fmt::format("output directory {} holds the input {}: rsfm replaces its output directory whole; give another --out",
+                         target.string(), in.string());
+  }
+  return open(target);
+}
+
 std::string OutputDir::open(const fs::path& target) {
   std::error_code ec;
   if (target.empty()) return "no output directory given";

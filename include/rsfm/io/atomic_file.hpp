@@ -56,6 +56,9 @@ class OutputDir {
   /// one-line reason: the target is not a directory, holds files that are not an rsfm output,
   /// or its parent cannot be created or written.
   std::string open(const std::filesystem::path& target);
+  /// The same, also refusing a target that holds one of `inputs` (files or directories the
+  /// command reads): replacing the target would delete its own input.
+  std::string open(const std::filesystem::path& target, const std::vector<std::filesystem::path>& inputs);
   /// Where to write: the staging directory (valid after a successful open()).
   const std::filesystem::path& path() const { return staging_; }
   const std::filesystem::path& target() const { return target_; }
