@@ -326,6 +326,59 @@ check "estimate: bad measurement" 2 "$V4" -- estimate --patches "$T4/twop.csv" -
 check "estimate: maps in the state, instantaneous" 2 "$V4" -- estimate --patches "$T4/twop.csv" --centres state --measurement instantaneous --out "$V4" --quiet
 check "estimate: maps in the state and fused maps" 2 "$V4" -- estimate --patches "$T4/twop.csv" --centres state --fused-maps true --out "$V4" --quiet
 
+# Issue 17: one reproducer per defect of the error contract and the bounded readers.
+I17="$TMP/i17"
+mkdir -p "$I17"
+printf '# rsfm-tracks 1\n# image_size 640 480\n# frames 0 100000000\nframe,track,x,y\n0,0,1,1\n1,0,2,2\n' >"$I17/frames1e8.csv"
+printf '# rsfm-tracks 1\n# image_size 640 480\n# frames 0 1\nframe,track,x,y\n0,100000000,1,1\n1,100000000,2,2\n' >"$I17/id1e8.csv"
+printf '# rsfm-tracks 1\n# image_size 100000000 100000000\n# frames 0 1\nframe,track,x,y\n0,0,1,1\n1,0,2,2\n' >"$I17/img1e8.csv"
+printf '# rsfm-tracks 1\n# image_size 640 480\n# frames 3000000000 3000000001\nframe,track,x,y\n' >"$I17/bigframe.csv"
+printf '# rsfm-tracks 1\n# image_size 640 480\n# frames 0 1\nfra\033[31mme,track\n' >"$I17/esc.csv"
+head -c 100000 /dev/zero | tr '\0' 'a' >"$I17/longline.csv"
+check "i17: header frame range beyond the rows" 2 "$I17/o" -- estimate --tracks "$I17/frames1e8.csv" --out "$I17/o"
+check "i17: track id 1e8" 2 "$I17/o" -- estimate --tracks "$I17/id1e8.csv" --out "$I17/o"
+check "i17: image_size 1e8" 2 "$I17/o" -- estimate --tracks "$I17/img1e8.csv" --out "$I17/o"
+check "i17: frame above INT_MAX" 2 "$I17/o" -- estimate --tracks "$I17/bigframe.csv" --out "$I17/o"
+check "i17: escape bytes" 2 "$I17/o" -- estimate --tracks "$I17/esc.csv" --out "$I17/o"
+check "i17: a 100 kB line" 2 "$I17/o" -- estimate --tracks "$I17/longline.csv" --out "$I17/o"
+check "i17: /dev/zero" 2 "$I17/o" -- estimate --tracks /dev/zero --out "$I17/o"
+if grep -q "$(printf '\033')" "$TMP/err.txt"; then fail=$((fail + 1)); echo "FAIL an ESC byte reached stderr"; fi
+"$RSFM" estimate --tracks "$I17/esc.csv" --out "$I17/o" 2>"$TMP/err.txt"
+if grep -q '\\x1b\[31m' "$TMP/err.txt" && ! grep -q "$(printf '\033')" "$TMP/err.txt"; then pass=$((pass + 1)); echo "ok   i17: control bytes escaped: $(cat "$TMP/err.txt")"
+else fail=$((fail + 1)); echo "FAIL i17: control bytes not escaped: $(cat -v "$TMP/err.txt")"; fi
+mkdir -p "$I17/tiny"
+for i in 0 1 2; do
+  /usr/bin/python3 -c "import sys; open(sys.argv[1], 'wb').write(b'P5 8 8 255\n' + bytes((x * 37 + y * 91 + $i * 5) % 256 for y in range(8) for x in range(8)))" "$I17/tiny/f$i.pgm"
+done
+check "i17: 8x8 images" 2 "$I17/o" -- track "$I17/tiny" --out "$I17/o"
+check "i17: --window 100001" 2 "$I17/o" -- track "$I17/tiny" --window 100001 --out "$I17/o"
+# summary.json and TUM numbers out of range, a still truth, --rpe-delta INT64_MAX (evaluate).
+E17="$I17/est"
+mkdir -p "$E17"
+cp "$T/trajectory.tum" "$E17/"
+sed 's/"version": 1/"version": 1e999/' "$T/summary.json" >"$E17/summary.json"
+check "i17: version 1e999" 2 "" -- evaluate --estimate "$E17" --truth "$T" --out "$I17/ev"
+sed 's/"version": 1/"version": 4294967297/' "$T/summary.json" >"$E17/summary.json"
+check "i17: version 2^32+1" 2 "" -- evaluate --estimate "$E17" --truth "$T" --out "$I17/ev"
+cp "$T/summary.json" "$E17/"
+printf '0 0 0 0 0 0 0 1\n1e-10 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n' >"$E17/trajectory.tum"
+check "i17: TUM t = 1e-10 beside frame 0" 2 "" -- evaluate --estimate "$E17" --truth "$T" --out "$I17/ev"
+grep -q "is frame 0 again" "$TMP/err.txt" || { fail=$((fail + 1)); echo "FAIL t=1e-10 message: $(cat "$TMP/err.txt")"; }
+S17="$I17/still"
+mkdir -p "$S17"
+cp "$T/summary.json" "$S17/"
+awk '!/^#/{print $1, 0, 0, 0, $5, $6, $7, $8}' "$T/trajectory.tum" >"$S17/trajectory.tum"
+cp "$T/trajectory.tum" "$E17/"
+check "i17: a still truth" 2 "" -- evaluate --estimate "$E17" --truth "$S17" --out "$I17/ev"
+grep -q "still/trajectory.tum: cannot align" "$TMP/err.txt" ||
+  { fail=$((fail + 1)); echo "FAIL still truth not named: $(cat "$TMP/err.txt")"; }
+if "$RSFM" evaluate --estimate "$E17" --truth "$T" --out "$I17/ev" --rpe-delta 9223372036854775807 >"$TMP/out.txt" 2>"$TMP/err.txt" &&
+   grep -q "RPE not computed" "$I17/ev/evaluation.md"; then
+  pass=$((pass + 1)); echo "ok   i17: --rpe-delta INT64_MAX: no pairs, no overflow"
+else
+  fail=$((fail + 1)); echo "FAIL i17: --rpe-delta INT64_MAX: $(cat "$TMP/err.txt")"
+fi
+
 # --help succeeds.
 if "$RSFM" experiment table1 --help >/dev/null 2>&1; then pass=$((pass + 1)); echo "ok   --help"; else fail=$((fail + 1)); echo "FAIL --help"; fi
 
