@@ -160,3 +160,21 @@ TEST(AtomicFileSet, TemporariesAreFreshFilesAndAPlantedLinkIsReplacedNotFollowed
   EXPECT_FALSE(fs::is_symlink(root.dir / "evaluation.json"));
   EXPECT_EQ(slurp(root.dir / "evaluation.json"), "{}");
 }
+
+TEST(OutputDir, AnOutputFromBeforeTheMarkerIsRecognisedByItsFiles) {
+  TempRoot root;
+  for (const auto& [name, text] : {std::pair<std::string, std::string>{"summary.json", "{\n  \"format\": \"rsfm-summary\",\n}"},
+                                   {"tracks.csv", "# rsfm-tracks 1\n# image_size 640 480\n"}}) {
+    const fs::path d = root.dir / ("old-" + name);
+    fs::create_directories(d);
+    put(d / name, text);
+    put(d / "motion.png", "png");
+    OutputDir od;
+    EXPECT_EQ(od.open(d), "") << name;
+  }
+  const fs::path d = root.dir / "lookalike";
+  fs::create_directories(d);
+  put(d / "summary.json", "{\"format\": \"someone-else\"}");
+  OutputDir od;
+  EXPECT_NE(od.open(d), "") << "a summary.json that is not rsfm's";
+}

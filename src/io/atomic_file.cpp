@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <fstream>
 #include <cerrno>
 #include <cstring>
 #include <mutex>
@@ -51,7 +52,8 @@ constexpr int kSlots = 8;
 constexpr int kMaxParents = 8;
 constexpr std::size_t kPathBytes = 4096;
 struct Slot {
-  std::atomic<bool> used{false};
+  std::atomic<bool> used{false};   // claimed by an OutputDir
+  std::atomic<bool> ready{false};  // its paths are complete: only then may the handler use them
   char staging[kPathBytes];
   int parents = 0;
   char parent[kMaxParents][kPathBytes];  // innermost first
@@ -89,7 +91,7 @@ void removeTree(int dirfd, const char* name, int depth) {
 
 extern "C" void onTerminatingSignal(int sig) {
   for (Slot& s : g_slots) {
-    if (!s.used.load()) continue;
+    if (!s.ready.load()) continue;
     removeTree(AT_FDCWD, s.staging, 0);
     for (int i = 0; i < s.parents; ++i) ::rmdir(s.parent[i]);
   }
@@ -116,20 +118,23 @@ int claimSlot(const fs::path& staging, const std::vector<fs::path>& parents) {
     bool expected = false;
     Slot& s = g_slots[i];
     if (!s.used.compare_exchange_strong(expected, true)) continue;
-    // Filled while `used` is true but before any signal can find it half-written: the handler
-    // then removes at most an incomplete path (a no-op), never someone else's.
-    s.staging[0] = '\0';
+    // The handler reads a slot only once `ready` is set, after its paths are complete: a signal
+    // in between leaves this staging directory behind, but never removes a half-copied path
+    // (a prefix such as "/tmp" would be someone else's directory).
     s.parents = 0;
     for (auto it = parents.rbegin(); it != parents.rend() && s.parents < kMaxParents; ++it)
       if (it->native().size() < kPathBytes) std::strcpy(s.parent[s.parents++], it->c_str());
     std::strcpy(s.staging, staging.c_str());
+    s.ready.store(true);
     return i;
   }
   return -1;  // more than kSlots at once: no cleanup on a signal, still all-or-nothing otherwise
 }
 
 void releaseSlot(int i) {
-  if (i >= 0) g_slots[i].used.store(false);
+  if (i < 0) return;
+  g_slots[i].ready.store(false);
+  g_slots[i].used.store(false);
 }
 
 }  // namespace
@@ -191,6 +196,28 @@ void writeAllOrNothing(const std::vector<std::pair<std::filesystem::path, std::s
 
 // ---- OutputDir -------------------------------------------------------------------------------
 
+namespace {
+
+/// An output of an rsfm from before the marker: its summary.json, tracks.csv or patches.csv
+/// says so in its first bytes.
+bool writtenByEarlierRsfm(const fs::path& p) {
+  const std::string name = p.filename().string();
+  const char* sign = name == "summary.json" ? "\"format\": \"rsfm-summary\""
+                     : name == "tracks.csv"  ? "# rsfm-tracks "
+                     : name == "patches.csv" ? "# rsfm-patches "
+                                             : nullptr;
+  if (!sign) return false;
+  std::error_code ec;
+  if (!fs::is_regular_file(p, ec)) return false;
+  std::ifstream in(p, std::ios::binary);
+  std::string head(512, '\0');
+  in.read(head.data(), static_cast<std::streamsize>(head.size()));
+  head.resize(static_cast<std::size_t>(in.gcount()));
+  return head.find(sign) != std::string::npos;
+}
+
+}  // namespace
+
 OutputDir::~OutputDir() {
   if (!committed_) discard();
 }
@@ -238,7 +265,7 @@ std::string OutputDir::open(const fs::path& target) {
     bool empty = true, marked = false;
     for (fs::directory_iterator it(t, ec), end; !ec && it != end; it.increment(ec)) {
       empty = false;
-      if (it->path().filename() == kMarker) marked = true;
+      if (it->path().filename() == kMarker || writtenByEarlierRsfm(it->path())) marked = true;
     }
     if (ec) return fmt::format("output directory {} cannot be read: {}", target.string(), ec.message());
     if (!empty && !marked)

@@ -8,7 +8,8 @@
 // (an error, an exception, SIGINT, SIGTERM or SIGHUP) the staging directory and every parent
 // directory the command created are removed: the target stays exactly as it was. An existing
 // target is replaced only when it is empty or an earlier rsfm output (it holds the marker file
-// `.rsfm-output`); anything else is refused, so `--out ~` cannot delete a home directory.
+// `.rsfm-output`, or, from before the marker, an rsfm summary.json, tracks.csv or patches.csv);
+// anything else is refused, so `--out ~` cannot delete a home directory.
 //
 // AtomicFileSet: files written under temporary names in their final directory and renamed into
 // place by commit(); the temporaries are created exclusively (O_EXCL | O_NOFOLLOW, random
