@@ -172,6 +172,13 @@ TEST(OutputDir, AnOutputFromBeforeTheMarkerIsRecognisedByItsFiles) {
     OutputDir od;
     EXPECT_EQ(od.open(d), "") << name;
   }
+  // A rendering from before the marker: truth/summary.json and the video.
+  const fs::path r = root.dir / "rendered";
+  fs::create_directories(r / "truth");
+  put(r / "truth" / "summary.json", "{\n  \"format\": \"rsfm-summary\",\n}");
+  put(r / "video.mp4", "mp4");
+  OutputDir odr;
+  EXPECT_EQ(odr.open(r), "");
   const fs::path d = root.dir / "lookalike";
   fs::create_directories(d);
   put(d / "summary.json", "{\"format\": \"someone-else\"}");

@@ -198,19 +198,23 @@ void writeAllOrNothing(const std::vector<std::pair<std::filesystem::path, std::s
 
 namespace {
 
-/// An output of an rsfm from before the marker: its summary.json, tracks.csv or patches.csv
-/// says so in its first bytes.
+/// An output of an rsfm from before the marker: one of its files says so in its first 64 kB
+/// (summary.json, tracks.csv, patches.csv, evaluation.json, scoreboard.json; a rendering's
+/// truth/summary.json).
 bool writtenByEarlierRsfm(const fs::path& p) {
   const std::string name = p.filename().string();
-  const char* sign = name == "summary.json" ? "\"format\": \"rsfm-summary\""
-                     : name == "tracks.csv"  ? "# rsfm-tracks "
-                     : name == "patches.csv" ? "# rsfm-patches "
-                                             : nullptr;
-  if (!sign) return false;
   std::error_code ec;
+  if (name == "truth" && fs::is_directory(p, ec)) return writtenByEarlierRsfm(p / "summary.json");
+  const char* sign = name == "summary.json"      ? "\"format\": \"rsfm-summary\""
+                     : name == "tracks.csv"      ? "# rsfm-tracks "
+                     : name == "patches.csv"     ? "# rsfm-patches "
+                     : name == "evaluation.json" ? "\"format\": \"rsfm-evaluation\""
+                     : name == "scoreboard.json" ? "\"format\": \"rsfm-scoreboard\""
+                                                 : nullptr;
+  if (!sign) return false;
   if (!fs::is_regular_file(p, ec)) return false;
   std::ifstream in(p, std::ios::binary);
-  std::string head(512, '\0');
+  std::string head(1 << 16, '\0');  // keys may be sorted: "format" is not always first
   in.read(head.data(), static_cast<std::streamsize>(head.size()));
   head.resize(static_cast<std::size_t>(in.gcount()));
   return head.find(sign) != std::string::npos;

@@ -4,9 +4,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <string_view>
 #include <vector>
 #include <cctype>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 
@@ -52,6 +54,73 @@ int intNode(const cv::FileStorage& fs, const char* name, const std::filesystem::
 
 CameraCalibration fromStorage(const cv::FileStorage& fs, const std::filesystem::path& file);
 
+/// Checks YAML text line by line against what calibration files hold (cv::calibrateCamera tools,
+/// camera.yaml) before OpenCV's parser sees it: OpenCV 4.6's YAML FileStorage loops forever on
+/// some malformed input (`%YAML:1.0`, `----x`, `o`, ` ` at the end: tests/fuzz). Accepted:
+/// a `%YAML` directive, `---`, comments, `key: value` lines (key [A-Za-z_][A-Za-z0-9_]*, value
+/// empty, a tag `!!name`, a number, a word, a double-quoted string, or a flow sequence `[ ... ]`
+/// of numbers that may span lines). Returns "" or the problem with its line.
+std::string yamlProblem(const std::string& t) {
+  auto isNumberChar = [](char c) {
+    return std::isdigit(static_cast<unsigned char>(c)) || c == '.' || c == '-' || c == '+' || c == 'e' || c == 'E';
+  };
+  // A flow sequence's items: numbers (or .nan/.inf), commas, spaces; `]` ends it.
+  auto sequence = [&](std::string_view v, bool* open) {
+    for (std::size_t i = 0; i < v.size(); ++i) {
+      const char c = v[i];
+      if (c == ']') {
+        *open = false;
+        return v.substr(i + 1).find_first_not_of(" \t") == std::string_view::npos;
+      }
+      if (!(isNumberChar(c) || c == ',' || c == ' ' || c == '\t' || std::isalpha(static_cast<unsigned char>(c)))) return false;
+    }
+    return true;
+  };
+  std::size_t ln = 0, pos = 0;
+  bool in_sequence = false, seen_key = false;
+  while (pos <= t.size()) {
+    std::size_t end = t.find('\n', pos);
+    if (end == std::string::npos) end = t.size();
+    std::string_view line(t.data() + pos, end - pos);
+    pos = end + 1;
+    ++ln;
+    if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+    const auto b = line.find_first_not_of(" \t");
+    if (b == std::string_view::npos) continue;
+    const std::string_view body = line.substr(b);
+    const std::string where = fmt::format("line {}: '{}'", ln, io::printable(body, 40));
+    if (in_sequence) {
+      if (!sequence(body, &in_sequence)) return where;
+      continue;
+    }
+    if (body[0] == '#') continue;
+    if (!seen_key && body.rfind("%YAML", 0) == 0) continue;
+    if (body == "---" || body == "...") continue;
+    std::size_t k = 0;
+    while (k < body.size() && (std::isalnum(static_cast<unsigned char>(body[k])) || body[k] == '_')) ++k;
+    if (k == 0 || std::isdigit(static_cast<unsigned char>(body[0])) || k >= body.size() || body[k] != ':') return where;
+    seen_key = true;
+    std::string_view v = body.substr(k + 1);
+    const auto vb = v.find_first_not_of(" \t");
+    if (vb == std::string_view::npos) continue;  // a map follows
+    v = v.substr(vb);
+    while (!v.empty() && (v.back() == ' ' || v.back() == '\t')) v.remove_suffix(1);
+    if (v.rfind("!!", 0) == 0) {
+      if (v.find_first_of(" \t[]{}") != std::string_view::npos) return where;
+    } else if (v[0] == '"') {
+      if (v.size() < 2 || v.back() != '"' || v.substr(1, v.size() - 2).find('"') != std::string_view::npos) return where;
+    } else if (v[0] == '[') {
+      in_sequence = true;
+      if (!sequence(v.substr(1), &in_sequence)) return where;
+    } else {
+      for (char c : v)
+        if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-' || c == '+' || c == '_')) return where;
+    }
+  }
+  if (in_sequence) return "a sequence '[' is never closed";
+  return "";
+}
+
 /// Checks that XML text is well formed at the tag level before OpenCV's parser sees it: every
 /// tag `<name attr="value" ...>`, `</name>` or `<name .../>` complete and nested, `<?...?>` and
 /// `<!--...-->` closed. OpenCV 4.6's XML FileStorage dereferences null on a truncated tag such
@@ -72,6 +141,10 @@ std::string xmlProblem(const std::string& t) {
       i = e + 3;
       continue;
     }
+    // A tag on one line: OpenCV's XML parser dereferences null on line breaks inside a tag too
+    // (`<?xml vn=` CR LF ... `"1.0"?>`, tests/fuzz); calibration files never split a tag.
+    if (const auto gt = t.find('>', i); gt != std::string::npos && t.find_first_of("\r\n", i) < gt)
+      return fmt::format("a tag split over lines at byte {}", i);
     const bool decl = t.compare(i, 2, "<?") == 0, close = t.compare(i, 2, "</") == 0;
     std::size_t j = i + (decl || close ? 2 : 1);
     const std::size_t name0 = j;
@@ -140,8 +213,14 @@ CameraCalibration readCameraText(const std::string& text, const std::filesystem:
     if ((c < 0x20 && c != '\t' && c != '\n' && c != '\r') || c == 0x7f)
       bad(file, fmt::format("not a text file (control byte 0x{:02x} at byte {})", c, i));
   }
-  if (const auto first = text.find_first_not_of(" \t\r\n"); first != std::string::npos && text[first] == '<')
+  const auto first = text.find_first_not_of(" \t\r\n");
+  if (first != std::string::npos && text[first] == '<') {
     if (const std::string why = xmlProblem(text); !why.empty()) bad(file, "malformed XML: " + why);
+  } else if (first != std::string::npos && text[first] == '{') {
+    if (!nlohmann::json::accept(text)) bad(file, "malformed JSON");
+  } else if (const std::string why = yamlProblem(text); !why.empty()) {
+    bad(file, "not a camera file in the YAML rsfm reads: " + why);
+  }
   cv::FileStorage fs;
   try {
     if (text.empty() || !fs.open(text, cv::FileStorage::READ | cv::FileStorage::MEMORY))
