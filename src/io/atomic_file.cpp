@@ -1,5 +1,7 @@
 #include "rsfm/io/atomic_file.hpp"
 
+#include "rsfm/io/input_error.hpp"
+
 #include <dirent.h>
 #include <fcntl.h>
 #include <fmt/format.h>
@@ -9,7 +11,6 @@
 #include <unistd.h>
 
 #include <atomic>
-#include <fstream>
 #include <cerrno>
 #include <cstring>
 #include <mutex>
@@ -213,11 +214,12 @@ bool writtenByEarlierRsfm(const fs::path& p) {
                                                  : nullptr;
   if (!sign) return false;
   if (!fs::is_regular_file(p, ec)) return false;
-  std::ifstream in(p, std::ios::binary);
-  std::string head(1 << 16, '\0');  // keys may be sorted: "format" is not always first
-  in.read(head.data(), static_cast<std::streamsize>(head.size()));
-  head.resize(static_cast<std::size_t>(in.gcount()));
-  return head.find(sign) != std::string::npos;
+  try {
+    // The first 64 kB: keys may be sorted, "format" is not always first.
+    return readAtMost(p, (1 << 16) - 1, "cannot be opened").find(sign) != std::string::npos;
+  } catch (const InputError&) {
+    return false;
+  }
 }
 
 }  // namespace

@@ -7,7 +7,6 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
-#include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
 
@@ -45,13 +44,8 @@ const json& required(const std::filesystem::path& f, const json& o, const char* 
 Summary readSummary(const std::filesystem::path& file) {
   std::error_code ec;
   if (std::filesystem::is_directory(file, ec)) bad(file, "is a directory, not a summary file");
-  std::ifstream in(file, std::ios::binary);
-  if (!in) bad(file, "cannot open summary file");
-  // A summary is a few kB; reading stops at kMaxSummaryBytes (no unbounded read of /dev/zero).
-  std::string text(kMaxSummaryBytes + 1, '\0');
-  in.read(text.data(), static_cast<std::streamsize>(text.size()));
-  if (in.bad()) bad(file, "read error");
-  text.resize(static_cast<std::size_t>(in.gcount()));
+  // A summary is a few kB; reading stops past kMaxSummaryBytes.
+  const std::string text = readAtMost(file, kMaxSummaryBytes, "cannot open summary file");
   if (text.size() > kMaxSummaryBytes) bad(file, fmt::format("larger than {} MiB: not an rsfm summary", kMaxSummaryBytes >> 20));
   return readSummaryText(text, file);
 }

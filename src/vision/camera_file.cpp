@@ -7,7 +7,6 @@
 #include <string_view>
 #include <vector>
 #include <cctype>
-#include <fstream>
 #include <nlohmann/json.hpp>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
@@ -195,13 +194,7 @@ std::string xmlProblem(const std::string& t) {
 CameraCalibration readCameraFile(const std::filesystem::path& file) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(file, ec)) bad(file, "no such file");
-  std::ifstream in(file, std::ios::binary);
-  if (!in) bad(file, "cannot be opened");
-  std::string text(kMaxCameraFileBytes + 1, '\0');
-  in.read(text.data(), static_cast<std::streamsize>(text.size()));
-  if (in.bad()) bad(file, "read error");
-  text.resize(static_cast<std::size_t>(in.gcount()));
-  return readCameraText(text, file);
+  return readCameraText(io::readAtMost(file, kMaxCameraFileBytes, "cannot be opened"), file);
 }
 
 CameraCalibration readCameraText(const std::string& text, const std::filesystem::path& file) {

@@ -140,7 +140,7 @@ cv::Mat toGray8(const cv::Mat& frame) {
 }
 
 void forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,
-                  const std::function<void(int, int)>& progress) {
+                  const std::function<void(int, int)>& progress, const MinFrameSize& min_size) {
   FrameSource src(input);
   cv::Mat img;
   int total = -1;
@@ -150,6 +150,10 @@ void forEachFrame(const std::string& input, FrameRange range, const std::functio
   }
   int used = 0;
   while (src.read(&img)) {
+    // Every frame has the first one's size (FrameSource::read): one check covers them all.
+    if (src.index() == 0 && std::min(img.cols, img.rows) < min_size.min_side)
+      throw io::InputError(fmt::format("{}: frames are {}x{} px; {} at least {}x{}", io::printable(input, 300), img.cols,
+                                       img.rows, min_size.who, min_size.min_side, min_size.min_side));
     if (src.index() < range.first) continue;
     if (range.last >= 0 && src.index() > range.last) break;
     fn(img);

@@ -224,21 +224,12 @@ Tracks trackInput(const std::string& input, const TrackerOptions& options, Frame
                   const std::function<void(int, int)>& progress) {
   KltTracker tracker(options);
   // The smallest frame the tracker works in: a window and the anchoring template inside the
-  // border on both sides (issue 17: 8x8 images and --window 100001 ended in OpenCV assertions).
+  // border on both sides.
   const int need = 2 * (options.border_px + std::max(options.window_px, 2 * options.affine.radius + 1));
-  bool first = true;
   forEachFrame(
-      input, range,
-      [&](const cv::Mat& img) {
-        if (first && std::min(img.cols, img.rows) < need)
-          throw io::InputError(fmt::format("{}: frames are {}x{} px; tracking with a {} px window, {} px template radius and "
-                                           "{} px border needs at least {}x{}",
-                                           io::printable(input, 300), img.cols, img.rows, options.window_px, options.affine.radius,
-                                           options.border_px, need, need));
-        first = false;
-        tracker.process(img);
-      },
-      progress);
+      input, range, [&](const cv::Mat& img) { tracker.process(img); }, progress,
+      {need, fmt::format("tracking with a {} px window, {} px template radius and {} px border needs", options.window_px,
+                         options.affine.radius, options.border_px)});
   Tracks t = tracker.tracks(range.first);
   t.source = input;
   return t;

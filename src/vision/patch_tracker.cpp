@@ -123,19 +123,9 @@ PatchTracks trackPatchesInput(const std::string& input, const PatchTrackerOption
   PatchTracker tracker(options);
   // The smallest frame the tracker works in: two patches and the prediction window side by side.
   const int need = 2 * (2 * options.affine.radius + 1) + options.window_px;
-  bool first = true;
   forEachFrame(
-      input, range,
-      [&](const cv::Mat& img) {
-        if (first && std::min(img.cols, img.rows) < need)
-          throw io::InputError(fmt::format("{}: frames are {}x{} px; patches of radius {} px with a {} px window need at least "
-                                           "{}x{}",
-                                           io::printable(input, 300), img.cols, img.rows, options.affine.radius,
-                                           options.window_px, need, need));
-        first = false;
-        tracker.process(img);
-      },
-      progress);
+      input, range, [&](const cv::Mat& img) { tracker.process(img); }, progress,
+      {need, fmt::format("patches of radius {} px with a {} px window need", options.affine.radius, options.window_px)});
   PatchTracks t = tracker.tracks(range.first);
   t.source = input;
   return t;

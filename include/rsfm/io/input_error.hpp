@@ -4,6 +4,7 @@
 // input is never echoed raw: `printable()` escapes control and non-ASCII bytes and shortens it.
 #include <cstddef>
 #include <filesystem>
+#include <fstream>
 #include <stdexcept>
 #include <string>
 #include <string_view>
@@ -48,6 +49,19 @@ inline InputError inputError(const std::filesystem::path& file, long long line, 
   s += ": ";
   s += msg;
   return InputError(s);
+}
+
+/// The first `max_bytes` + 1 bytes of `file` at most (one more than a format allows, so that the
+/// caller can refuse an oversized file): no unbounded read of /dev/zero. Throws InputError
+/// "FILE: <cannot_open>" when it cannot be opened, "FILE: read error" on a read error.
+inline std::string readAtMost(const std::filesystem::path& file, std::size_t max_bytes, const std::string& cannot_open) {
+  std::ifstream in(file, std::ios::binary);
+  if (!in) throw inputError(file, 0, cannot_open);
+  std::string text(max_bytes + 1, '\0');
+  in.read(text.data(), static_cast<std::streamsize>(text.size()));
+  if (in.bad()) throw inputError(file, 0, "read error");
+  text.resize(static_cast<std::size_t>(in.gcount()));
+  return text;
 }
 
 }  // namespace rsfm::io

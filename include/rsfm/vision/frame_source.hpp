@@ -50,10 +50,18 @@ class FrameSource {
 /// 8-bit single-channel version of a frame (BGR, BGRA, gray; 16-bit scaled by 1/256).
 cv::Mat toGray8(const cv::Mat& frame);
 
+/// The smallest frame a consumer works in (issue 17: 8x8 images and --window 100001 ended in
+/// OpenCV assertions): `min_side` px on each side; `who` completes "FILE: frames are WxH px;
+/// <who> at least NxN" (e.g. "tracking with a 11 px window ... needs").
+struct MinFrameSize {
+  int min_side = 0;
+  std::string who;
+};
+
 /// Calls `fn` on every frame of `input` in `range`, in order; `progress(done, total)` after each
-/// (total = -1 when unknown). Throws io::InputError on bad input, a range that starts after the end
-/// or ends after it, or fewer than 2 frames.
+/// (total = -1 when unknown). Throws io::InputError on bad input, frames smaller than `min_size`,
+/// a range that starts after the end or ends after it, or fewer than 2 frames.
 void forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,
-                  const std::function<void(int, int)>& progress = {});
+                  const std::function<void(int, int)>& progress = {}, const MinFrameSize& min_size = {});
 
 }  // namespace rsfm::vision
