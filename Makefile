@@ -42,7 +42,7 @@ test: build
 # build directory; any finding fails the test that met it. Leak checking is off (LeakSanitizer
 # needs ptrace, which containers often refuse).
 test-sanitize: deps
-	cmake -S . -B $(BUILD)-sanitize -DCMAKE_BUILD_TYPE=Release -DRSFM_SANITIZE=ON -DRSFM_BUILD_BENCH=OFF
+	cmake -S . -B $(BUILD)-sanitize -DCMAKE_BUILD_TYPE=Release -DRSFM_SANITIZE=ON -DRSFM_BUILD_BENCH=OFF -DRSFM_BUILD_PYTHON=OFF
 	cmake --build $(BUILD)-sanitize -j$(JOBS)
 	cd $(BUILD)-sanitize && ASAN_OPTIONS=detect_leaks=0:abort_on_error=0 UBSAN_OPTIONS=print_stacktrace=1 \
 	  ctest --output-on-failure -j$(JOBS)
@@ -52,7 +52,7 @@ test-sanitize: deps
 FUZZ_SECONDS ?= 60
 fuzz-build: deps
 	command -v clang++ >/dev/null 2>&1 || apt-get install -y -q --no-install-recommends -o DPkg::Lock::Timeout=600 clang
-	CC=clang CXX=clang++ cmake -S . -B $(BUILD)-fuzz -DCMAKE_BUILD_TYPE=Release -DRSFM_FUZZ=ON -DRSFM_BUILD_BENCH=OFF
+	CC=clang CXX=clang++ cmake -S . -B $(BUILD)-fuzz -DCMAKE_BUILD_TYPE=Release -DRSFM_FUZZ=ON -DRSFM_BUILD_BENCH=OFF -DRSFM_BUILD_PYTHON=OFF
 	cmake --build $(BUILD)-fuzz -j$(JOBS) --target rsfm_fuzz_all
 
 fuzz: fuzz-build

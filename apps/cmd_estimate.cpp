@@ -243,12 +243,48 @@ std::string cameraYamlOf(const EstimateResult& r, const EstimateOptions& o, cons
                             f.camera[2], f.camera[3], extra);
 }
 
+/// A figure that could not be made is a warning (always printed, also with --quiet); the numbers
+/// are written regardless (docs/outputs.md, "Figures").
+void warnMissingFigures(const nlohmann::json& summary) {
+  if (!summary.contains("figures") || summary["figures"]["missing"].empty()) return;
+  std::string names;
+  for (const auto& m : summary["figures"]["missing"]) names += (names.empty() ? "" : ", ") + m.get<std::string>();
+  fmt::print(stderr, "rsfm: warning: figures not written ({}): {}\n", names, summary["figures"]["why"].get<std::string>());
+}
+
+bool figuresWritten(const nlohmann::json& summary) {
+  return summary.contains("figures") && !summary["figures"]["written"].empty();
+}
+
 std::function<void(const std::string&)> noteTo(bool quiet) {
   if (quiet) return {};
   return [](const std::string& m) { fmt::print(stderr, "{}\n", m); };
 }
 
 }  // namespace
+
+EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult& r, const EstimateCli& e) {
+  const vision::PlaneFinding& pf = r.planes;
+  rep.tracks = &tracks;
+  rep.labels = &r.labels();
+  rep.result = &r.online;
+  rep.refined = &r.refined;
+  if (e.est.camera) {
+    const vision::CameraCalibration& c = *e.est.camera;
+    given = report::GivenCamera{c.focal(), c.cx, c.cy, c.distortion, c.source};
+    rep.given_camera = &*given;
+  }
+  rep.focal_given = e.est.camera.has_value() || e.est.filter.focal_px > 0;
+  rep.model = e.est.filter.model;
+  rep.command = invocation();
+  nlohmann::json cands = nlohmann::json::array();
+  for (const auto& c : pf.candidates)
+    cands.push_back({{"verdict", vision::toString(c.verdict)}, {"label", c.label}, {"tracks", c.members.size()},
+                     {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction}});
+  if (r.start.ok) rep.extra["start"] = startJson(r.start);
+  rep.extra["plane_finding"] = {{"pair_frame", tracks.first_frame + pf.pair_frame}, {"candidates", cands},
+                                {"manual", !e.est.finder.rois.empty()}};
+}
 
 /// The pipeline (pipeline/estimate.hpp) + report (+ overlay when `overlay_input` is set). Returns the exit code.
 int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOverlay& overlay, double t_start,
@@ -265,29 +301,9 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
     return fail(kRuntimeFailure, ex.what());
   }
   const TrackFilterResult& res = r.online;
-  const vision::PlaneFinding& pf = r.planes;
   if (!res.ok()) return fail(kRuntimeFailure, "the filter stopped at " + res.stopped + " (no outputs written)");
-  report::EstimateReport rep;
-  rep.tracks = &tracks;
-  rep.labels = &r.labels();
-  rep.result = &res;
-  rep.refined = &r.refined;
-  std::optional<report::GivenCamera> given;
-  if (e.est.camera) {
-    const vision::CameraCalibration& c = *e.est.camera;
-    given = report::GivenCamera{c.focal(), c.cx, c.cy, c.distortion, c.source};
-    rep.given_camera = &*given;
-  }
-  rep.focal_given = e.est.camera.has_value() || e.est.filter.focal_px > 0;
-  rep.model = e.est.filter.model;
-  rep.command = invocation();
-  nlohmann::json cands = nlohmann::json::array();
-  for (const auto& c : pf.candidates)
-    cands.push_back({{"verdict", vision::toString(c.verdict)}, {"label", c.label}, {"tracks", c.members.size()},
-                     {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction}});
-  if (r.start.ok) rep.extra["start"] = startJson(r.start);
-  rep.extra["plane_finding"] = {{"pair_frame", tracks.first_frame + pf.pair_frame}, {"candidates", cands},
-                                {"manual", !e.est.finder.rois.empty()}};
+  EstimateRunReport run(tracks, r, e);
+  report::EstimateReport& rep = run.rep;
   nlohmann::json summary;
   if (int rc = guarded([&] {
         io::AtomicFileSet files;
@@ -300,6 +316,8 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
         files.commit();
       }))
     return rc;
+  warnMissingFigures(summary);
+  const bool plotted = figuresWritten(summary);
   if (!e.quiet) {
     const auto& s = summary;
     if (s["focal_px"].is_null())
@@ -319,7 +337,7 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
     fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum{}, planes.csv, poses.csv, labels.csv{}{}{}\n",
                e.shown_out.empty() ? e.out : e.shown_out,
                r.refined.ok ? ", trajectory_online.tum" : "",
-               e.plots ? ", motion/normals/focal.png" : "", write_tracks ? ", tracks.csv" : "",
+               plotted ? ", motion/normals/focal.png" : "", write_tracks ? ", tracks.csv" : "",
                overlay ? ", overlay.mp4" : "");
   }
   return 0;
@@ -357,6 +375,8 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
         files.commit();
       }))
     return rc;
+  warnMissingFigures(summary);
+  const bool plotted = figuresWritten(summary);
   if (!e.quiet && !summary["structure_determined"].get<bool>()) {
     // One line for what the data do not determine (issue 17), instead of confident numbers.
     const std::string focal =
@@ -371,7 +391,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
     fmt::print(stderr, "estimate: {} frames, {} patches, {}; patch normals not determined: {}; wrote {}/summary.json, "
                "trajectory.tum, patch_normals.csv{}{}{}\n",
                res.frames.size(), res.entered, focal, summary["not_determined_why"].get<std::string>(),
-               e.shown_out.empty() ? e.out : e.shown_out, e.plots ? ", patch_run.png" : "", write_patches ? ", patches.csv" : "",
+               e.shown_out.empty() ? e.out : e.shown_out, plotted ? ", patch_run.png" : "", write_patches ? ", patches.csv" : "",
                overlay ? ", overlay.mp4" : "");
   } else if (!e.quiet) {
     if (summary.contains("patch_filter_focal_z") && summary["patch_filter_focal_z"].is_number() &&
@@ -389,7 +409,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
                summary["focal_sd_px"].get<double>(), ln["within_5deg"].get<int>(),
                summary["patches"]["live_last_frame"].get<int>(), ln["angle_to_median_deg"]["median"].get<double>(),
                e.shown_out.empty() ? e.out : e.shown_out,
-               e.plots ? ", patch_run.png" : "", write_patches ? ", patches.csv" : "", overlay ? ", overlay.mp4" : "");
+               plotted ? ", patch_run.png" : "", write_patches ? ", patches.csv" : "", overlay ? ", overlay.mp4" : "");
   }
   return 0;
 }

@@ -17,6 +17,23 @@
 #include "rsfm/experiment/patches.hpp"
 
 namespace rsfm::cli {
+namespace {
+
+/// ", a.png, a.svg" for the figures made (the end of the "wrote ..." line).
+std::string wroteFigures(const rsfm::report::Figures& f) {
+  std::string out;
+  for (const auto& n : f.written) out += ", " + n;
+  return out;
+}
+
+/// A figure that could not be made is a warning, printed also with --quiet; the numbers are
+/// written regardless (docs/outputs.md, "Figures").
+void warnFigures(const rsfm::report::Figures& f) {
+  if (const std::string w = f.warning(); !w.empty()) fmt::print(stderr, "rsfm: warning: {}\n", w);
+}
+
+}  // namespace
+
 
 void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   auto* exp = app.add_subcommand("experiment", "reproduce the papers' synthetic experiments");
@@ -247,17 +264,19 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }
+    rsfm::report::Figures fig;
     try {
-      rsfm::report::writeTable1Report(res, od.path(), invocation());
+      fig = rsfm::report::writeTable1Report(res, od.path(), invocation());
       od.commit();
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }
+    warnFigures(fig);
     int failed = 0;
     for (const auto& row : res.rows) failed += row.failed;
     if (!quiet)
-      fmt::print(stderr, "table1: {:.1f} s; wrote {}/table1.csv, table1.md, fig1.png, fig1.svg\n",
-                 res.seconds, out);
+      fmt::print(stderr, "table1: {:.1f} s; wrote {}/table1.csv, table1.md{}\n",
+                 res.seconds, out, wroteFigures(fig));
     if (failed > 0)
       fmt::print(stderr, "rsfm: warning: {} trial runs stopped on numerical trouble (see table1.md)\n",
                  failed);
@@ -277,15 +296,18 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
       po.progress = progressReporter("planes");
     }
     rsfm::PlanesResult res;
+    rsfm::report::Figures fig;
     try {
       res = rsfm::runPlanes(po);
-      rsfm::report::writePlanesReport(res, od.path(), invocation());
+      fig = rsfm::report::writePlanesReport(res, od.path(), invocation());
       od.commit();
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }
+    warnFigures(fig);
     if (!pquiet)
-      fmt::print(stderr, "planes: {:.1f} s; wrote {}/planes.csv, planes.md, planes.png, planes.svg\n", res.seconds, pout);
+      fmt::print(stderr, "planes: {:.1f} s; wrote {}/planes.csv, planes.md{}\n", res.seconds, pout,
+                 wroteFigures(fig));
     return 0;
     }});
   commands.push_back({pat, [pas]() -> int {
@@ -302,18 +324,20 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     if (auto msg = od.open(pas->out); !msg.empty()) return fail(kBadInput, msg);
     if (!pas->quiet) o.progress = progressReporter("patches");
     rsfm::PatchesResult res;
+    rsfm::report::Figures fig;
     try {
       res = rsfm::runPatches(o);
-      rsfm::report::writePatchesReport(res, od.path(), invocation());
+      fig = rsfm::report::writePatchesReport(res, od.path(), invocation());
       od.commit();
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }
+    warnFigures(fig);
     int failed = 0;
     for (const auto& row : res.rows) failed += row.failed;
     if (!pas->quiet)
-      fmt::print(stderr, "patches: {:.1f} s; wrote {}/patches.csv, patches.md, patches.png, patches.svg\n", res.seconds,
-                 pas->out);
+      fmt::print(stderr, "patches: {:.1f} s; wrote {}/patches.csv, patches.md{}\n", res.seconds,
+                 pas->out, wroteFigures(fig));
     if (failed > 0)
       fmt::print(stderr, "rsfm: warning: {} trial runs stopped on numerical trouble (see patches.md)\n", failed);
     return 0;
@@ -325,18 +349,20 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
     if (auto msg = od.open(tws->out); !msg.empty()) return fail(kBadInput, msg);
     if (!tws->quiet) o.progress = progressReporter("two-object");
     rsfm::TwoObjectResult res;
+    rsfm::report::Figures fig;
     try {
       res = rsfm::runTwoObject(o);
-      rsfm::report::writeTwoObjectReport(res, od.path(), invocation());
+      fig = rsfm::report::writeTwoObjectReport(res, od.path(), invocation());
       od.commit();
     } catch (const std::exception& e) {
       return fail(1, e.what());
     }
+    warnFigures(fig);
     int failed = 0;
     for (const auto& row : res.rows) failed += row.failed;
     if (!tws->quiet)
-      fmt::print(stderr, "two-object: {:.1f} s; wrote {}/two_object.csv, two_object.md, two_object.png, two_object.svg\n",
-                 res.seconds, tws->out);
+      fmt::print(stderr, "two-object: {:.1f} s; wrote {}/two_object.csv, two_object.md{}\n",
+                 res.seconds, tws->out, wroteFigures(fig));
     if (failed > 0)
       fmt::print(stderr, "rsfm: warning: {} trial runs stopped on numerical trouble (see two_object.md)\n", failed);
     return 0;

@@ -12,6 +12,7 @@
 
 #include "rsfm/pipeline/estimate.hpp"
 #include "rsfm/pipeline/patch_pipeline.hpp"
+#include "rsfm/report/estimate_report.hpp"
 
 namespace rsfm::cli {
 
@@ -40,6 +41,17 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e);
 std::string finishEstimateOptions(EstimateCli* e);
 /// Seconds on a monotonic clock.
 double now();
+
+/// The report of one estimate() run as `rsfm estimate` writes it: the result, the given camera,
+/// summary.json's "start" and "plane_finding". The Python module builds its summary with it too
+/// (python/rsfm_module.cpp), so both give the same numbers. Holds pointers into `tracks` and `r`.
+struct EstimateRunReport {
+  EstimateRunReport(const Tracks& tracks, const EstimateResult& r, const EstimateCli& e);
+  EstimateRunReport(const EstimateRunReport&) = delete;
+  EstimateRunReport& operator=(const EstimateRunReport&) = delete;
+  report::EstimateReport rep;
+  std::optional<report::GivenCamera> given;
+};
 
 /// Writes the overlay video of a result to a temporary file (committed with the other outputs).
 using TrackOverlay = std::function<void(const EstimateResult&, const std::filesystem::path&)>;

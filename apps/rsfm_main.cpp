@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "cli_common.hpp"
+#include "rsfm/version.hpp"
 
 namespace rsfm::cli::detail {
 std::string& invocationStorage();
@@ -63,7 +64,7 @@ int main(int argc, char** argv) {
   }
   CLI::App app{"rsfm: recursive estimation of camera motion, focal length and planar structure"};
   app.require_subcommand(1);
-  app.set_version_flag("--version", "rsfm 0.1.0");
+  app.set_version_flag("--version", std::string("rsfm ") + rsfm::kVersion);
 
   std::vector<Command> commands;
   addExperimentCommands(app, commands);

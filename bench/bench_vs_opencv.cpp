@@ -1,5 +1,5 @@
 // Issue 15: rsfm's plane filter against the two-view alternative a user would pick, on the same
-// frames in one run. The Table 1 scene (seed 000 §4: a plane 30 deg off-axis, the camera rotating
+// frames in one run. The Table 1 scene ([AS99] §4: a plane 30 deg off-axis, the camera rotating
 // about a point in front of it, 100 frames after the reference, f = 256 px, 512 x 512 px) with N
 // points and 1 px uniform noise on every frame (the reference frame included).
 //   rsfm:    the plane filter (state 10) over the 100 frames, per frame = one pass / 100 (the

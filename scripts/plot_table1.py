@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Fig. 1 of Alon & Sclaroff (seed 000): trial-averaged estimates per frame against truth.
+"""Fig. 1 of Alon & Sclaroff ([AS99]): trial-averaged estimates per frame against truth.
 
 Usage: plot_table1.py FIG1_DATA.csv OUT.png OUT.svg
 Rows: translation (t_X solid, t_Z*beta dashed), rotation quaternion (q0 solid, q2 dashed),

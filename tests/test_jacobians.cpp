@@ -19,7 +19,7 @@ Eigen::Matrix3d someRotation() {
   return Eigen::AngleAxisd(0.4, Eigen::Vector3d(0.3, -1.0, 0.2).normalized()).toRotationMatrix();
 }
 
-// ---- incremental rotation: dR(dq(omega))/d omega (seed appendix) ----
+// ---- incremental rotation: dR(dq(omega))/d omega ([AS99] appendix) ----
 void checkRotationJacobian(const Eigen::Vector3d& w, const std::string& what) {
   auto f = [](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
     if (!incrementalRotationValid(x)) return false;
@@ -38,7 +38,7 @@ TEST(RotationJacobian, Generic) { checkRotationJacobian({0.05, -0.02, 0.03}, "sm
 TEST(RotationJacobian, LargeOmega) { checkRotationJacobian({1.1, -0.7, 0.9}, "|omega| = 1.58"); }
 
 TEST(RotationJacobian, MatchesSeedAppendixMatrices) {
-  // The appendix prints dR/d omega_X explicitly; compare with our chain-rule form.
+  // [AS99]'s appendix prints dR/d omega_X explicitly; compare with our chain-rule form.
   const Eigen::Vector3d w(0.3, -0.2, 0.25);
   const double g = std::sqrt(1.0 - w.squaredNorm() / 4.0);
   const double wx = w.x(), wy = w.y(), wz = w.z();
@@ -307,7 +307,7 @@ TEST(Models, InvalidRotationIsReported) {
 }
 
 TEST(Models, PlanePointLiesOnPlaneAndRay) {
-  // Eq. 12 gives the point on the first-frame ray (eq. 5) that satisfies N . X = 1 (eq. 9).
+  // [AS99] eq. 12 gives the point on the first-frame ray (eq. 5) that satisfies N . X = 1 (eq. 9).
   const Eigen::Vector3d N(1.15, -0.3, 2.0);
   const double beta = 0.8;
   const Eigen::Vector2d uv(0.3, -0.25);

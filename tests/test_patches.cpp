@@ -1,6 +1,7 @@
-// Calway's affine-patch model (DESIGN.md §5): both measurement functions and the Murray-Shapiro
-// transition against geometry and against central differences (the shared checker), including
-// near-singular cases; the exact and instantaneous forms agree to first order in the motion.
+// Calway's affine-patch model ([Cal00]; docs/patches.md): both measurement functions and the
+// Murray-Shapiro transition against geometry and against central differences (the shared checker),
+// including near-singular cases; the exact and instantaneous forms agree to first order in the
+// motion.
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
@@ -380,7 +381,7 @@ TEST(PatchFilter, ConsistentFromTheTruthOnTheSphere) {
 }
 
 TEST(PatchesExperiment, SphereConvergesFromAFrontoParallelStart) {
-  // Calway's test (DESIGN §5) at 10 % noise from beta0 = 0.5 and fronto-parallel patches, the
+  // Calway's test ([Cal00]) at 10 % noise from beta0 = 0.5 and fronto-parallel patches, the
   // experiment's protocol over 10 trials (seed 1), at frame 200. Issue 5: beta within 5 % and
   // every patch normal within 5 deg. Observed (exact): beta 2.2 % (trial mean; 8 of 10 trials
   // within 5 %, the worst 6.1 %: the data fix beta to about 4 % per trial), patch normals 1.2 deg

@@ -1,5 +1,6 @@
 #pragma once
-// The A&P camera model (seed 000 eqs. 5-7; DESIGN.md §1).
+// The A&P camera model ([AP95] in the notation of [AS99], eqs. 5-7; docs/conventions.md).
+// Citation keys: docs/bibliography.md.
 //
 // Frames and units:
 //  - Normalized image coordinates (u, v) = ((x_px - c_x)/s, (y_px - c_y)/s), s in pixels per unit.
@@ -12,7 +13,7 @@
 
 namespace rsfm {
 
-/// Layout of the motion/camera part of every state vector (seed eq. 1).
+/// Layout of the motion/camera part of every state vector ([AS99] eq. 1).
 namespace idx {
 inline constexpr int kTx = 0;    ///< t_X (scene units)
 inline constexpr int kTy = 1;    ///< t_Y (scene units)
@@ -37,7 +38,7 @@ struct ImageGeometry {
   }
 };
 
-/// Camera-frame point in A&P form: q = (X_C, Y_C, beta Z_C) for reference point X (eq. 6).
+/// Camera-frame point in A&P form: q = (X_C, Y_C, beta Z_C) for reference point X ([AS99] eq. 6).
 inline Eigen::Vector3d apTransform(const Eigen::Vector3d& X, const Eigen::Matrix3d& R,
                                    const Eigen::Vector3d& t_apbeta, double beta) {
   Eigen::Vector3d q = R * X;
@@ -45,7 +46,7 @@ inline Eigen::Vector3d apTransform(const Eigen::Vector3d& X, const Eigen::Matrix
   return q + t_apbeta;
 }
 
-/// Projection of q = (X_C, Y_C, beta Z_C) (eq. 7). Caller checks 1 + q.z() > 0.
+/// Projection of q = (X_C, Y_C, beta Z_C) ([AS99] eq. 7). Caller checks 1 + q.z() > 0.
 inline Eigen::Vector2d apProject(const Eigen::Vector3d& q) {
   return q.head<2>() / (1.0 + q.z());
 }

@@ -1,5 +1,5 @@
 #pragma once
-// A generic extended Kalman filter over a dynamic-size state (DESIGN.md §3).
+// A generic extended Kalman filter over a dynamic-size state (docs/filter.md).
 //
 // - Prediction is the identity plus additive noise (P <- P + Q) unless the caller supplies a
 //   transition Jacobian F (P <- F P F^T + Q; the caller propagates x).
@@ -94,7 +94,7 @@ struct UpdateOptions {
   /// quantile is rejected. <= 0 or >= 1 disables gating. Default 0.999 (13.8 for 2-D blocks).
   double gate_probability = 0.999;
   /// Minimum number of accepted blocks to apply the update (A&P needs 7 points, the plane model 5:
-  /// seed §3.1). Below it the update is skipped and kTooFewMeasurements is reported.
+  /// [AS99] §3.1). Below it the update is skipped and kTooFewMeasurements is reported.
   int min_blocks = 1;
 };
 

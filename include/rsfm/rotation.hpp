@@ -1,8 +1,8 @@
 #pragma once
-// Incremental-rotation utilities of Azarbayejani & Pentland (A&P 1995) as used by
-// Alon & Sclaroff 1999 (seed 000, eqs. 2-3 and appendix).
+// Incremental-rotation utilities of Azarbayejani & Pentland (A&P 1995, [AP95]) as used by
+// Alon & Sclaroff 1999 ([AS99] eqs. 2-3 and appendix; keys: docs/bibliography.md).
 //
-// Conventions (DESIGN.md §1):
+// Conventions (docs/conventions.md, "Rotations"):
 //  - Quaternions are Hamilton, stored as Eigen::Quaterniond (w, x, y, z).
 //  - A rotation R maps reference-frame coordinates into camera-frame coordinates.
 //  - The incremental rotation is delta_q(omega) = (sqrt(1 - eps), omega/2), eps = |omega|^2/4,
@@ -17,7 +17,7 @@
 
 namespace rsfm {
 
-/// How the state's omega is read between frames (DESIGN.md §1).
+/// How the state's omega is read between frames (docs/conventions.md, "Rotations").
 enum class RotationReading {
   /// omega is kept after each step: it is the per-frame rotation (constant angular velocity).
   Rate,
@@ -31,19 +31,19 @@ std::string_view toString(RotationReading r);
 /// Parses "rate" or "reset"; returns false on anything else.
 bool parseRotationReading(std::string_view s, RotationReading* out);
 
-/// eps = |omega|^2 / 4 (seed eq. 3).
+/// eps = |omega|^2 / 4 ([AS99] eq. 3).
 double incrementalEpsilon(const Eigen::Vector3d& omega);
 
 /// True when delta_q(omega) is defined (eps < 1, finite).
 bool incrementalRotationValid(const Eigen::Vector3d& omega);
 
-/// delta_q = (sqrt(1-eps), omega/2) (seed eq. 2). Requires incrementalRotationValid(omega).
+/// delta_q = (sqrt(1-eps), omega/2) ([AS99] eq. 2). Requires incrementalRotationValid(omega).
 Eigen::Quaterniond incrementalQuaternion(const Eigen::Vector3d& omega);
 
 /// R(delta_q(omega)).
 Eigen::Matrix3d incrementalRotation(const Eigen::Vector3d& omega);
 
-/// dR(delta_q(omega))/d omega_j for j = 0,1,2 (seed appendix; identical to the matrices printed
+/// dR(delta_q(omega))/d omega_j for j = 0,1,2 ([AS99] appendix; identical to the matrices printed
 /// there, derived here by the chain rule through the Hamilton rotation matrix).
 std::array<Eigen::Matrix3d, 3> incrementalRotationDerivatives(const Eigen::Vector3d& omega);
 

@@ -16,7 +16,7 @@ namespace rsfm {
 
 namespace {
 
-/// A point of its plane in the reference frame (seed eq. 12) with its partials: shared by every
+/// A point of its plane in the reference frame ([AS99] eq. 12) with its partials: shared by every
 /// frame that observes it.
 struct PlanePoint {
   MeasureStatus status = MeasureStatus::Ok;

@@ -1,4 +1,4 @@
-// Calway's synthetic experiment (DESIGN.md §5). See patches.hpp.
+// Calway's synthetic experiment ([Cal00]; docs/patches.md). See patches.hpp.
 #include "rsfm/experiment/patches.hpp"
 #include "rsfm/units.hpp"
 

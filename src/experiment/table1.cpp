@@ -74,7 +74,7 @@ std::string failureText(int frame, const FrameStats& fs, int points) {
   return os.str();
 }
 
-/// Fitted plane of the point model's current 3-D points (seed §4: "fitting a plane").
+/// Fitted plane of the point model's current 3-D points ([AS99] §4: "fitting a plane").
 bool pointModelPlane(const RecursiveFilter<PointModel>& f, Eigen::Vector3d* N) {
   const auto& x = f.ekf().x();
   std::vector<Eigen::Vector3d> pts;
@@ -385,7 +385,7 @@ void aggregate(const Table1Options& o, const Table1Scene& scene0, const std::vec
   } else {
     row->crb_beta_pct = row->crb_normal_deg = -1.0;
   }
-  // Convergence on the trial-averaged estimates (the curves of Fig. 1).
+  // Convergence on the trial-averaged estimates (the curves of [AS99] Fig. 1).
   std::vector<double> nerr(F + 1), berr(F + 1);
   std::vector<Eigen::Vector3d> Nm(F + 1, Eigen::Vector3d::Zero());
   for (const Track* t : ok)

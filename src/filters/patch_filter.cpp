@@ -1,4 +1,4 @@
-// Calway's affine-patch filter (seed 003; DESIGN.md §5). See patch_filter.hpp.
+// Calway's affine-patch filter ([Cal00]; docs/patches.md). See patch_filter.hpp.
 #include "rsfm/filters/patch_filter.hpp"
 
 #include <Eigen/Cholesky>

@@ -180,6 +180,16 @@ void AtomicFileSet::commit() {
   done_ = true;
 }
 
+void AtomicFileSet::drop(const fs::path& temp) {
+  for (auto it = files_.begin(); it != files_.end(); ++it)
+    if (it->first == temp) {
+      std::error_code ec;
+      fs::remove(temp, ec);
+      files_.erase(it);
+      return;
+    }
+}
+
 void AtomicFileSet::abort() {
   for (const auto& [t, final_path] : files_) {
     std::error_code ec;

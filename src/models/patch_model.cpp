@@ -1,4 +1,4 @@
-// Calway's affine-patch model (seed 003; DESIGN.md §5). Jacobians by the chain rule, one
+// Calway's affine-patch model ([Cal00]; docs/patches.md). Jacobians by the chain rule, one
 // parameter at a time (forward mode): for each of the 10 parameters (t_X, t_Y, t_Z beta, omega,
 // beta, p1, p2, p4) the derivatives of the intermediate quantities are propagated explicitly.
 #include "rsfm/models/patch_model.hpp"
@@ -145,7 +145,7 @@ MeasureStatus PatchModel::instantaneous(const Eigen::Matrix<double, 7, 1>& m, co
   const double g = p4 - p1 * u - p2 * v;
   const double e = 1.0 - beta * g;
   if (!(e > kMinDepthFactor)) return MeasureStatus::BehindCamera;
-  // DESIGN §5, first order in (V, Omega).
+  // The instantaneous flow formulas of docs/patches.md, first order in (V, Omega).
   const double bu = e * (Vx - u * W) + Oy * (g + beta * u * u) - Oz * v - beta * Ox * u * v;
   const double bv = e * (Vy - v * W) - Ox * (g + beta * v * v) + Oz * u + beta * Oy * u * v;
   const double a11 = beta * p1 * Vx - W * (e + beta * p1 * u) - Oy * (p1 - 2.0 * beta * u) - beta * Ox * v;

@@ -51,8 +51,9 @@ MeasureStatus projectWithJacobian(const MotionContext& m, const Eigen::Vector3d&
   if (!(w > 1e-12)) return MeasureStatus::BehindCamera;
   const double iw = 1.0 / w, hx = q.x() * iw, hy = q.y() * iw;
   if (h) *h = Eigen::Vector2d(hx, hy);
-  // dh/dq = [1/w, 0, -q1/w^2; 0, 1/w, -q2/w^2] (appendix: the t_X, t_Y, t_Z beta partials), applied
-  // to a vector v as ((v1 - h1 v3) / w, (v2 - h2 v3) / w): written out, this runs for every point.
+  // dh/dq = [1/w, 0, -q1/w^2; 0, 1/w, -q2/w^2] ([AS99] appendix: the t_X, t_Y, t_Z beta partials),
+  // applied to a vector v as ((v1 - h1 v3) / w, (v2 - h2 v3) / w): written out, this runs for every
+  // point.
   auto dhdq = [&](double v0, double v1, double v2) { return Eigen::Vector2d((v0 - hx * v2) * iw, (v1 - hy * v2) * iw); };
   if (H_motion) {
     H_motion->col(0) << iw, 0.0;

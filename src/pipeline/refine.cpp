@@ -456,7 +456,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   }
   if (!r.focal_determined && !known_focal) {
     // The interval the data support: the 95 % interval of beta (in which the model is nearly
-    // linear: seed eq. 7) mapped to f = s / beta, within the range a camera's focal length can
+    // linear: [AS99] eq. 7) mapped to f = s / beta, within the range a camera's focal length can
     // have (0.3-3 x the larger image side); the whole range when nothing rotates or beta is in
     // the null space.
     const double lo = 0.3 * fmax, hi = 3.0 * fmax;

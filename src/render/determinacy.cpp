@@ -67,7 +67,7 @@ Determinacy analyseDeterminacy(const Scene& scene, const DeterminacyOptions& opt
         }
     }
     for (auto& v : per) {
-      if (static_cast<int>(v.size()) < 5) continue;  // a plane needs 5 points (seed §3.1)
+      if (static_cast<int>(v.size()) < 5) continue;  // a plane needs 5 points ([AS99] §3.1)
       const double stride = std::max(1.0, static_cast<double>(v.size()) / opt.points_per_plane);
       for (double s = 0; s < v.size(); s += stride) pts.push_back(v[static_cast<std::size_t>(s)]);
     }
@@ -85,7 +85,7 @@ Determinacy analyseDeterminacy(const Scene& scene, const DeterminacyOptions& opt
     det.why = "no textured plane seen in the first frame with at least 5 points";
     return out;
   }
-  // The A&P frame (seed eqs. 5-7; camera.hpp) with s = f, so beta = 1, after scaling the scene so
+  // The A&P frame ([AS99] eqs. 5-7; camera.hpp) with s = f, so beta = 1, after scaling the scene so
   // that the points' median depth is 10 (the image-plane origin, 1 unit before the centre of
   // projection, then lies far from every plane). The bound on f/f and on directions is the same
   // at any scale.

@@ -94,6 +94,12 @@ nlohmann::json finalEstimates(const TrackFilterResult& res) {
 
 }  // namespace
 
+nlohmann::json figuresJson(const Figures& f) {
+  nlohmann::json j = {{"written", f.written}, {"missing", f.missing}};
+  if (!f.missing.empty()) j["why"] = f.why;
+  return j;
+}
+
 nlohmann::json estimateSummary(const EstimateReport& r) {
   const Tracks& t = *r.tracks;
   const bool refined = refinedOk(r);
@@ -349,15 +355,12 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
   }
   files->write(dir / "labels.csv", lc);
   nlohmann::json summary = estimateSummary(r);
-  files->write(dir / "summary.json", summary.dump(2) + "\n");
   if (plots) {
-    std::vector<std::string> args = {tum_tmp.string(), planes_tmp.string()};
-    for (const char* stem : {"motion", "normals", "focal"}) {
-      args.push_back(files->temp(dir / (std::string(stem) + ".png")).string());
-      args.push_back(files->temp(dir / (std::string(stem) + ".svg")).string());
-    }
-    runScript("plot_estimate.py", args);
+    summary["figures"] = figuresJson(makeFigures(files, dir, "plot_estimate.py", {tum_tmp.string(), planes_tmp.string()},
+                                                 {"motion.png", "motion.svg", "normals.png", "normals.svg", "focal.png",
+                                                  "focal.svg"}));
   }
+  files->write(dir / "summary.json", summary.dump(2) + "\n");
   return summary;
 }
 

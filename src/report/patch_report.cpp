@@ -144,9 +144,11 @@ nlohmann::json writePatchReport(const PatchReport& r, const std::filesystem::pat
   }
   const auto normals_tmp = files->write(dir / "patch_normals.csv", pc);
   nlohmann::json summary = patchSummary(r);
+  if (plots) {
+    summary["figures"] = figuresJson(makeFigures(files, dir, "plot_patch_run.py", {normals_tmp.string()},
+                                                 {"patch_run.png", "patch_run.svg"}));
+  }
   files->write(dir / "summary.json", summary.dump(2) + "\n");
-  if (plots)
-    runPlotScript("plot_patch_run.py", normals_tmp, files->temp(dir / "patch_run.png"), files->temp(dir / "patch_run.svg"));
   return summary;
 }
 

@@ -98,8 +98,8 @@ std::string patchesFigureData(const PatchesResult& r) {
   return s;
 }
 
-void writePatchesReport(const PatchesResult& r, const std::filesystem::path& dir, const std::string& command_line) {
-  writeFigureReport(dir, "patches", patchesCsv(r), patchesMarkdown(r, command_line), "patches_data",
+Figures writePatchesReport(const PatchesResult& r, const std::filesystem::path& dir, const std::string& command_line) {
+  return writeFigureReport(dir, "patches", patchesCsv(r), patchesMarkdown(r, command_line), "patches_data",
                     patchesFigureData(r), "patches", "plot_patches.py");
 }
 

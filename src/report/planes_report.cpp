@@ -82,8 +82,8 @@ std::string planesFigureData(const PlanesResult& r) {
   return s;
 }
 
-void writePlanesReport(const PlanesResult& r, const std::filesystem::path& dir, const std::string& command_line) {
-  writeFigureReport(dir, "planes", planesCsv(r), planesMarkdown(r, command_line), "planes_data",
+Figures writePlanesReport(const PlanesResult& r, const std::filesystem::path& dir, const std::string& command_line) {
+  return writeFigureReport(dir, "planes", planesCsv(r), planesMarkdown(r, command_line), "planes_data",
                     planesFigureData(r), "planes", "plot_planes.py");
 }
 

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <dlfcn.h>
 #include <stdexcept>
 
 #include "rsfm/io/atomic_file.hpp"
@@ -35,11 +36,55 @@ std::string pythonInterpreter() {
 
 std::string scriptsDirectory() {
   if (const char* p = std::getenv("RSFM_SCRIPTS_DIR"); p && *p) return p;
-  return RSFM_SCRIPTS_DIR;
+  // The binary holding this function: the executable (static libraries) or a shared object.
+  Dl_info info{};
+  if (::dladdr(reinterpret_cast<void*>(&scriptsDirectory), &info) == 0 || !info.dli_fname) return {};
+  std::error_code ec;
+  std::filesystem::path bin = std::filesystem::canonical(info.dli_fname, ec);
+  if (ec) bin = std::filesystem::canonical("/proc/self/exe", ec);
+  if (ec) return {};
+  std::filesystem::path dir = bin.parent_path();
+  for (int up = 0; up <= 5 && !dir.empty(); ++up) {
+    const std::filesystem::path cand = dir / "share" / "rsfm" / "scripts";
+    if (std::filesystem::is_regular_file(cand / "plot_estimate.py", ec)) return cand.string();
+    if (dir == dir.parent_path()) break;
+    dir = dir.parent_path();
+  }
+  return {};
+}
+
+std::string Figures::warning() const {
+  if (missing.empty()) return {};
+  std::string names;
+  for (const auto& m : missing) names += (names.empty() ? "" : ", ") + m;
+  return fmt::format("figures not written ({}): {}", names, why);
+}
+
+Figures makeFigures(io::AtomicFileSet* files, const std::filesystem::path& dir, const std::string& script,
+                    std::vector<std::string> inputs, const std::vector<std::string>& names) {
+  Figures out;
+  std::vector<std::filesystem::path> temps;
+  try {
+    for (const auto& n : names) temps.push_back(files->temp(dir / n));
+    for (const auto& t : temps) inputs.push_back(t.string());
+    runScript(script, inputs);
+    out.written = names;
+  } catch (const std::exception& e) {
+    for (const auto& t : temps) files->drop(t);
+    out.missing = names;
+    out.why = io::printable(e.what(), 300);
+  }
+  return out;
 }
 
 void runScript(const std::string& script, const std::vector<std::string>& args) {
-  const std::string path = scriptsDirectory() + "/" + script;
+  const std::string dir = scriptsDirectory();
+  if (dir.empty())
+    throw std::runtime_error(
+        "the plot scripts were not found (no share/rsfm/scripts beside the binary or above it; set RSFM_SCRIPTS_DIR)");
+  const std::string path = dir + "/" + script;
+  if (std::error_code ec; !std::filesystem::is_regular_file(path, ec))
+    throw std::runtime_error("the plot script " + path + " is missing");
   std::string cmd = "MPLBACKEND=Agg ";
   cmd += shellQuote(pythonInterpreter());
   cmd += ' ';
@@ -74,22 +119,16 @@ void runScript(const std::string& script, const std::vector<std::string>& args) 
                                        missing ? " (needs python3 with python3-matplotlib; see scripts/install-deps.sh)" : ""));
 }
 
-void runPlotScript(const std::string& script, const std::filesystem::path& data,
-                   const std::filesystem::path& png, const std::filesystem::path& svg) {
-  runScript(script, {data.string(), png.string(), svg.string()});
-}
-
-void writeFigureReport(const std::filesystem::path& dir, const std::string& stem, const std::string& csv,
-                       const std::string& markdown, const std::string& data_stem, const std::string& data,
-                       const std::string& figure_stem, const std::string& script) {
+Figures writeFigureReport(const std::filesystem::path& dir, const std::string& stem, const std::string& csv,
+                          const std::string& markdown, const std::string& data_stem, const std::string& data,
+                          const std::string& figure_stem, const std::string& script) {
   AtomicFileSet files;
   files.write(dir / (stem + ".csv"), csv);
   files.write(dir / (stem + ".md"), markdown);
   const auto data_tmp = files.write(dir / (data_stem + ".csv"), data);
-  const auto png = files.temp(dir / (figure_stem + ".png"));
-  const auto svg = files.temp(dir / (figure_stem + ".svg"));
-  runPlotScript(script, data_tmp, png, svg);
+  Figures fig = makeFigures(&files, dir, script, {data_tmp.string()}, {figure_stem + ".png", figure_stem + ".svg"});
   files.commit();
+  return fig;
 }
 
 }  // namespace rsfm::report

@@ -19,7 +19,7 @@ std::string frameOr(int r, int frames) {
 }
 std::string frameCsv(int r) { return r == Table1Row::kNotComputed ? "NA" : std::to_string(r); }
 
-/// The paper's Table 1 (seed 000): m_t, sigma_t, m_q, sigma_q, r_s, r_c (-1 = ">100").
+/// The paper's Table 1 ([AS99], docs/bibliography.md): m_t, sigma_t, m_q, sigma_q, r_s, r_c (-1 = ">100").
 struct PaperRow {
   double m_t, s_t, m_q, s_q;
   int r_s, r_c;
@@ -64,7 +64,7 @@ std::string table1Markdown(const Table1Result& r, const std::string& command_lin
        "components, frames 1..F and successful trials; m_q, sigma_q: the same for the rotation "
        "quaternion (w, x, y, z; Hamilton, sign with w >= 0). r_s: first frame from which the "
        "trial-averaged normal stays within 0.5 deg of truth; r_c: first frame from which the "
-       "trial-averaged beta stays within 5 % (-1 / >F: never). Paper values from seed 000, Table 1.\n\n";
+       "trial-averaged beta stays within 5 % (-1 / >F: never). Paper values from [AS99] Table 1 (docs/bibliography.md).\n\n";
   s += "| formulation | noise px | m_t | sigma_t | m_q | sigma_q | r_s | r_c | paper sigma_t | paper "
        "sigma_q | paper r_s | paper r_c | normal err at F (deg) | beta err at F (%) | median trial sigma_t | median trial sigma_q | failed trials |\n";
   s += "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
@@ -133,7 +133,7 @@ std::string table1Markdown(const Table1Result& r, const std::string& command_lin
   s += "\nNIS/dof near 1 means the per-frame noise model is right. NEES of the static parameters far "
        "above its dof means the filter is overconfident about them: the reference-frame positions' "
        "noise is a constant error per point that the EKF's white-noise model cannot average out "
-       "(seed 000 §2's \"known weakness\"; see docs/table1.md).\n";
+       "([AS99] §2's \"known weakness\"; see docs/table1.md).\n";
   s += "\n## Options (every choice the paper leaves open)\n\n| option | value | meaning |\n|---|---|---|\n";
   auto opt = [&](const std::string& k, const std::string& v, const std::string& m) {
     s += fmt::format("| `{}` | {} | {} |\n", k, v, m);
@@ -186,9 +186,9 @@ std::string table1FigureData(const Table1Result& r) {
   return s;
 }
 
-void writeTable1Report(const Table1Result& r, const std::filesystem::path& dir,
+Figures writeTable1Report(const Table1Result& r, const std::filesystem::path& dir,
                        const std::string& command_line) {
-  writeFigureReport(dir, "table1", table1Csv(r), table1Markdown(r, command_line), "fig1_data",
+  return writeFigureReport(dir, "table1", table1Csv(r), table1Markdown(r, command_line), "fig1_data",
                     table1FigureData(r), "fig1", "plot_table1.py");
 }
 

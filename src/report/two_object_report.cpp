@@ -82,8 +82,8 @@ std::string twoObjectFigureData(const TwoObjectResult& r) {
   return s;
 }
 
-void writeTwoObjectReport(const TwoObjectResult& r, const std::filesystem::path& dir, const std::string& command_line) {
-  writeFigureReport(dir, "two_object", twoObjectCsv(r), twoObjectMarkdown(r, command_line), "two_object_data",
+Figures writeTwoObjectReport(const TwoObjectResult& r, const std::filesystem::path& dir, const std::string& command_line) {
+  return writeFigureReport(dir, "two_object", twoObjectCsv(r), twoObjectMarkdown(r, command_line), "two_object_data",
                     twoObjectFigureData(r), "two_object", "plot_two_object.py");
 }
 

@@ -1,4 +1,4 @@
-// Synthetic patch scenes (DESIGN.md §5). See patch_scene.hpp.
+// Synthetic patch scenes ([Cal00]; docs/patches.md). See patch_scene.hpp.
 #include "rsfm/sim/patch_scene.hpp"
 #include "rsfm/units.hpp"
 

@@ -25,7 +25,8 @@ cv::Scalar colourOf(int label) {
 }
 
 /// Grid nodes of plane j: a 9x9 grid over the bounding box of the plane's reference tracks,
-/// back-projected onto the plane (reference frame, A&P coordinates, eq. 12) with the final estimate.
+/// back-projected onto the plane (reference frame, A&P coordinates, [AS99] eq. 12) with the final
+/// estimate.
 std::vector<std::vector<Eigen::Vector3d>> planeGrid(const Tracks& tracks, const std::vector<int>& labels, int j,
                                                     const TrackFrame& fin, double s) {
   // The grid spans the 5th to 95th percentiles of the plane's reference tracks, so that a few

@@ -1,10 +1,11 @@
 #pragma once
 // Batch reference for the plane models (rigid, one or more planes): bundle adjustment over all
-// frames with the filter's parameterization, solved with Ceres (issue 3; DESIGN §2, §4).
+// frames with the filter's parameterization, solved with Ceres (issue 3; docs/planes.md,
+// docs/table1.md).
 //
 // Parameters: per frame k >= 1 the motion (t_X, t_Y, t_Z beta, omega) where omega is a
-// left perturbation of a fixed base rotation (R_k = R(dq(omega_k)) Rbase_k, seed eqs. 2-3; the
-// base is the filter's estimate, so omega starts at 0); beta; one N per plane (N . X = 1, seed
+// left perturbation of a fixed base rotation (R_k = R(dq(omega_k)) Rbase_k, [AS99] eqs. 2-3; the
+// base is the filter's estimate, so omega starts at 0); beta; one N per plane (N . X = 1, [AS99]
 // eq. 9) with the scale gauge held constant (one component of one plane, as in the filter); and,
 // optionally, every point's reference-frame position (u, v)^1 with its own frame-0 residual: the
 // maximum-likelihood problem, which also estimates what the A&P models take as exact.

@@ -1,8 +1,8 @@
 #pragma once
-// Calway's synthetic experiment (DESIGN.md §5): the affine-patch filter (exact and instantaneous
-// measurements) and the A&P point filter run on the patches' centres, on the SAME noisy data, in
-// two scenes: 8 clusters on a moving sphere (200 frames) and the Table 1 plane seen through patches
-// (100 frames). Trials run in parallel and are reproducible for a given seed.
+// Calway's synthetic experiment ([Cal00]; docs/patches.md): the affine-patch filter (exact and
+// instantaneous measurements) and the A&P point filter run on the patches' centres, on the SAME
+// noisy data, in two scenes: 8 clusters on a moving sphere (200 frames) and the Table 1 plane seen
+// through patches (100 frames). Trials run in parallel and are reproducible for a given seed.
 #include <Eigen/Core>
 #include <cstdint>
 #include <functional>

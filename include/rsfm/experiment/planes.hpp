@@ -3,7 +3,7 @@
 // estimated by
 //   point             the A&P filter on all points (faces' planes fitted to its 3-D points),
 //   plane-per-face    one independent plane filter per face (own motion, beta and gauge),
-//   planes-rigid      the rigid multi-plane filter (seed eq. 13: shared motion and beta, one N
+//   planes-rigid      the rigid multi-plane filter ([AS99] eq. 13: shared motion and beta, one N
 //                     per face, one gauge),
 //   planes-rigid-iekf the same with iterated updates,
 //   batch             Ceres bundle adjustment over all frames, multi-plane, references estimated,

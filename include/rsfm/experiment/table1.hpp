@@ -1,5 +1,5 @@
 #pragma once
-// The paper's synthetic experiment (seed 000 §4, Table 1, Fig. 1; DESIGN.md §4): the point
+// The paper's synthetic experiment ([AS99] §4, Table 1, Fig. 1; docs/table1.md): the point
 // (A&P) and plane (Alon-Sclaroff) filters run on the SAME noisy tracks of the Table 1 scene,
 // trials in parallel, reproducible for a given seed whatever the thread count.
 #include <Eigen/Core>
@@ -31,7 +31,7 @@ struct Table1Options {
   double q_structure = 0.0;      ///< per-frame variance of each free structure component
   double r_scale = 1.0;          ///< R = r_scale * (noise_px / s)^2 per coordinate
   /// Noise on the reference frame too (its noisy positions become the filters' first-frame
-  /// coordinates, which the A&P models treat as exact: seed §2's "known weakness").
+  /// coordinates, which the A&P models treat as exact: [AS99] §2's "known weakness").
   bool reference_noise = true;
   double gate_probability = 0.999;  ///< per-point chi2 gate (<= 0 disables)
   int iterations = 1;            ///< measurement-update iterations (1 = EKF, > 1 = iterated EKF)

@@ -1,7 +1,7 @@
 #pragma once
 // Frame driver for planes moving independently (IndependentPlanesModel): one global rotation per
-// plane, folded from that plane's omega after each update (reset reading, DESIGN §1), identity
-// dynamics plus noise for every plane's motion and the shared beta.
+// plane, folded from that plane's omega after each update (reset reading, docs/conventions.md),
+// identity dynamics plus noise for every plane's motion and the shared beta.
 #include <Eigen/Core>
 #include <Eigen/LU>
 #include <cstdint>

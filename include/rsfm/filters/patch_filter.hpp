@@ -1,5 +1,5 @@
 #pragma once
-// Calway's affine-patch filter (seed 003; DESIGN.md §5): an EKF over the state of PatchModel,
+// Calway's affine-patch filter ([Cal00]; docs/patches.md): an EKF over the state of PatchModel,
 // 7 + 3K, with a nonlinear transition. One step, for the measurements of frame k:
 //   1. predict the inter-frame motion (identity dynamics: P += Q on the motion and beta; the
 //      structure gets q_structure);
@@ -24,7 +24,7 @@
 namespace rsfm {
 
 /// Treatment of the patch centres, which are outside the state (7 + 3K) but are the points about
-/// which each next measurement is taken (DESIGN.md §5 leaves this open).
+/// which each next measurement is taken (the model leaves this open; docs/patches.md, "Filter").
 enum class PatchCentres {
   /// The tracker's measured centre. The previous centre is then a noisy measurement of the same
   /// point: centre_sd^2 A A^T is added to R of the centre coordinates. Each displacement is used as
@@ -56,7 +56,8 @@ enum class PatchCentres {
 std::string_view toString(PatchCentres c);
 bool parsePatchCentres(std::string_view s, PatchCentres* out);
 
-/// Tuning of the patch filter. Units: normalized image units (DESIGN §1), the gauge's scene units.
+/// Tuning of the patch filter. Units: normalized image units (docs/conventions.md), the gauge's
+/// scene units.
 struct PatchFilterOptions {
   AffineMeasurement measurement = AffineMeasurement::Exact;
   /// Measurement standard deviations of (h_u, h_v, A_11, A_12, A_21, A_22): the centre in

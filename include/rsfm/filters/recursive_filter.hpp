@@ -1,5 +1,5 @@
 #pragma once
-// Frame-by-frame driver shared by the point and plane models (DESIGN.md §1, §3).
+// Frame-by-frame driver shared by the point and plane models (docs/conventions.md, docs/filter.md).
 // One step = predict (identity dynamics, P += Q) -> linearize all observations -> EKF update ->
 // fold the incremental rotation into the global rotation R_g (and zero omega in the reset reading).
 #include <Eigen/Core>
@@ -19,7 +19,7 @@
 namespace rsfm {
 
 /// How the first-frame (reference) image positions of the points are treated. The A&P and
-/// Alon-Sclaroff models take them as exact (seed 000 §2: "a known weakness ... biases the
+/// Alon-Sclaroff models take them as exact ([AS99] §2: "a known weakness ... biases the
 /// results"); with real tracks they carry the same noise as every other measurement.
 enum class ReferenceModel {
   /// As published: reference positions exact, R = sigma^2 I.
@@ -32,7 +32,7 @@ enum class ReferenceModel {
   /// S = sigma^2 I + H_i P+ H_i^T, C_i^-1 <- C_i^-1 + J^T S^-1 J, uv_i <- uv_i + C_i J^T S^-1 (z - h).
   /// This removes the errors-in-variables bias of noisy references over time. O(N) per frame for
   /// the plane models. Approximate: each observation informs both the state and its reference,
-  /// and the cross-covariance is not kept (Beardsley et al.'s per-point remedy, seed ref. [2], in spirit).
+  /// and the cross-covariance is not kept (Beardsley et al.'s per-point remedy, [BZM97], in spirit).
   Refine,
   /// The reference positions join the state: x = [model state | u_1, v_1, ..., u_N, v_N], each
   /// starting at its measured position with variance reference_sigma^2, and every observation's
@@ -59,7 +59,7 @@ inline bool parseReferenceModel(std::string_view s, ReferenceModel* out) {
   return true;
 }
 
-/// Filter tuning. Units: normalized image units and scene units of the state (DESIGN.md §1).
+/// Filter tuning. Units: normalized image units and scene units of the state (docs/conventions.md).
 struct FilterOptions {
   RotationReading reading = RotationReading::Reset;  ///< see rotation.hpp
   /// Measurement standard deviation (normalized units): R = sigma^2 I per point.
@@ -243,7 +243,7 @@ class RecursiveFilter {
     if (opt_.reference == ReferenceModel::Refine && fs.update.applied && fs.health == kHealthy)
       refineReferences(obs, fs.used, fs.update.gated_mask);
     syncReferences(ekf_.x());
-    // R^k = R(dq(omega)) R^{k-1} (seed appendix).
+    // R^k = R(dq(omega)) R^{k-1} ([AS99] appendix).
     Rg_ = incrementalRotation(omega) * Rg_;
     if (opt_.reading == RotationReading::Reset) ekf_.mutableX().template segment<3>(idx::kWx).setZero();
     return fs;

@@ -34,6 +34,9 @@ class AtomicFileSet {
   /// Writes `text` to a temporary of `final_path` and returns the temporary's path; throws
   /// std::runtime_error on failure.
   std::filesystem::path write(const std::filesystem::path& final_path, const std::string& text);
+  /// Removes one temporary (as returned by temp() or write()) from the set: commit() leaves no
+  /// file for it (a figure whose script failed, docs/outputs.md "Figures").
+  void drop(const std::filesystem::path& temp);
   /// Renames every temporary into place.
   void commit();
   /// Removes every temporary.

@@ -1,10 +1,10 @@
 #pragma once
-// Planes moving independently (seed 000 §3.2, last sentence; DESIGN §2): each plane j has its own
+// Planes moving independently ([AS99] §3.2, last sentence; docs/planes.md): each plane j has its own
 // motion (t^j, omega^j) and its own global rotation R_g^j outside the state; beta is shared.
 // State x = (beta, [t_X, t_Y, t_Z beta, omega_X, omega_Y, omega_Z, N_X, N_Y, N_Z]^j for j = 0..m-1):
-// size 1 + 9m. A point labelled j is projected exactly as in the plane model (eqs. 6, 7, 12) with
-// plane j's motion. Each plane is its own rigid body, so each needs its own scale gauge (one
-// component of each N held fixed).
+// size 1 + 9m. A point labelled j is projected exactly as in the plane model ([AS99] eqs. 6, 7
+// and 12) with plane j's motion. Each plane is its own rigid body, so each needs its own scale
+// gauge (one component of each N held fixed).
 #include <Eigen/Core>
 #include <vector>
 
@@ -15,7 +15,7 @@ namespace rsfm {
 
 class IndependentPlanesModel {
  public:
-  static constexpr int kMinPoints = 5;  ///< per plane (seed §3.1)
+  static constexpr int kMinPoints = 5;  ///< per plane ([AS99] §3.1)
   static constexpr int kBlock = 9;      ///< state components per plane
 
   IndependentPlanesModel() = default;

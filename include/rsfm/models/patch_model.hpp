@@ -1,32 +1,34 @@
 #pragma once
-// Calway's affine-patch model (seed 003; DESIGN.md §5): K tracked affine patches, each with its own
+// Calway's affine-patch model ([Cal00]; docs/patches.md): K tracked affine patches, each with its own
 // tangent plane, observed through the 6 parameters of its local affine map between consecutive
 // frames.
 //
 // State x = (t_X, t_Y, t_Z beta, omega_X, omega_Y, omega_Z, beta, s_1, ..., s_K): 7 + 3K, with
-// s_k = (p1, p2, p4) the normalized plane parameters of patch k (DESIGN §5):
+// s_k = (p1, p2, p4) the normalized plane parameters of patch k (docs/patches.md, "Model"):
 //   patch plane n . X = d in the CURRENT camera frame (A&P coordinates: origin on the image plane,
 //   centre of projection at (0, 0, -1/beta)), sigma = n_3 + beta d > 0 for a visible plane,
 //   (p1, p2, p3, p4) = (n_1, n_2, n_3, d) / sigma, so p3 = 1 - beta p4 is not stored.
 //   For image points (u, v) of the plane: g = Z / (1 + beta Z) = p4 - p1 u - p2 v.
 // Motion (t, omega) is the INTER-FRAME motion from the previous camera to the current one,
-// X_cur = t + R(dq(omega)) X_prev (A&P eq. 6 with the previous frame as reference), kept with
+// X_cur = t + R(dq(omega)) X_prev ([AS99] eq. 6 with the previous frame as reference), kept with
 // identity dynamics (constant velocity); t_Z is stored as t_Z beta. Units: normalized image units
-// (DESIGN §1) and the scene units fixed by the gauge.
+// (docs/conventions.md) and the scene units fixed by the gauge.
 //
-// Measurement of patch k (DESIGN §5, the fragment's eqn 8), about its centre c = (u_k, v_k) in the
-// previous frame, as z = (h_u, h_v, A_11, A_12, A_21, A_22): h is the centre's position in the
-// current frame and A the 2x2 local Jacobian of the image map previous -> current at c.
+// Measurement of patch k ([Cal00] eqn (8), re-derived in docs/patches.md), about its centre
+// c = (u_k, v_k) in the previous frame, as z = (h_u, h_v, A_11, A_12, A_21, A_22): h is the
+// centre's position in the current frame and A the 2x2 local Jacobian of the image map
+// previous -> current at c.
 //   Exact:  H = R + beta tbar P^T (the plane-induced homography in centre-of-projection
 //           coordinates), tbar = t + (I - R) (0, 0, 1/beta), P = (p1, p2, p3); with the ray
 //           y = (beta u, beta v, 1) and w = H y:  h = (w_1, w_2) / (beta w_3),
 //           A = (H[0:2, 0:2] - beta h H[2, 0:2]) / w_3  (= K H K^-1 linearized, K = diag(1/beta, 1/beta, 1)).
 //   Instantaneous: first order in the motion (V = t, W = beta t_Z, Omega = omega):
-//           h = c + b, A = I + a with b, a the flow formulas of DESIGN §5.
+//           h = c + b, A = I + a with b, a the flow formulas of docs/patches.md.
 // The two agree to first order in the motion (tests/test_patches.cpp).
 //
-// Transition (Murray & Shapiro; DESIGN §5): after each update the structure is carried into the
-// new current frame, P' = R P / s, p4' = (p4 + (R P) . t) / s, s = (R P)_3 + beta p4 + beta (R P) . t,
+// Transition (Murray & Shapiro, [MS96] via [Cal00]; re-derived in docs/patches.md): after each
+// update the structure is carried into the new current frame,
+//   P' = R P / s, p4' = (p4 + (R P) . t) / s, s = (R P)_3 + beta p4 + beta (R P) . t,
 // and then the whole scene is rescaled about the centre of projection so that the gauge patch keeps
 // its fixed p4 (see regauge()). Motion and beta keep identity dynamics.
 #include <Eigen/Core>
@@ -42,7 +44,7 @@ using Vector6d = Eigen::Matrix<double, 6, 1>;
 template <int Rows>
 using PatchJacobian = Eigen::Matrix<double, Rows, 10>;
 
-/// Which affine measurement function the patch filter uses (DESIGN §5).
+/// Which affine measurement function the patch filter uses (docs/patches.md).
 enum class AffineMeasurement {
   Exact,          ///< plane-induced homography linearized at the patch centre
   Instantaneous,  ///< first-order (velocity) flow form

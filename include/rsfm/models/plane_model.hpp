@@ -1,11 +1,11 @@
 #pragma once
-// The planar structure model of Alon & Sclaroff (seed 000 §3, eqs. 8-13).
+// The planar structure model of Alon & Sclaroff ([AS99] §3, eqs. 8-13; keys: docs/bibliography.md).
 // State x = (t_X, t_Y, t_Z beta, omega_X, omega_Y, omega_Z, beta, N^1, ..., N^m): 7 + 3m
-// (m = 1 is the single-plane filter of eq. 8; m > 1 the rigid multi-plane state of eq. 13).
+// (m = 1 is the single-plane filter of [AS99] eq. 8; m > 1 the rigid multi-plane state of its eq. 13).
 // Plane j is N^j . X = 1 in the reference frame (origin on the image plane; unit normal
 // N/|N|, distance 1/|N|). Point i, labelled with plane l(i), observed first at (u, v):
 //   p = eta ((N_Z + beta) u, (N_Z + beta) v, 1 - N_X u - N_Y v),
-//   eta = 1 / (beta N_X u + beta N_Y v + N_Z)                            (eq. 12)
+//   eta = 1 / (beta N_X u + beta N_Y v + N_Z)                      ([AS99] eq. 12)
 // N . X = 1 cannot represent a plane through the image-plane origin: |N| > kMaxPlaneNorm is
 // reported as PlaneThroughOrigin; a ray within kMinGrazingSine of parallel to the plane as
 // HorizonSingular.
@@ -19,7 +19,7 @@ namespace rsfm {
 
 class PlaneModel {
  public:
-  /// Points needed for one plane with unknown focal length (seed §3.1: 1 + 2N > 10).
+  /// Points needed for one plane with unknown focal length ([AS99] §3.1: 1 + 2N > 10).
   static constexpr int kMinPoints = 5;
   /// Structure columns one point's measurement depends on (its plane's N).
   static constexpr int kStructurePerPoint = 3;
@@ -49,17 +49,18 @@ class PlaneModel {
   /// Validity of plane N for the ray through uv1 (see the class comment).
   static MeasureStatus checkRay(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv1);
 
-  /// Reference-frame 3-D point of eq. 12 with dp/dbeta and dp/dN (3x3, columns N_X, N_Y, N_Z)
-  /// (seed appendix) and dp/d(u, v) (3x2). dp/dN has rank one, ray c^T with the ray
+  /// Reference-frame 3-D point of [AS99] eq. 12 with dp/dbeta and dp/dN (3x3, columns N_X, N_Y, N_Z)
+  /// ([AS99] appendix) and dp/d(u, v) (3x2). dp/dN has rank one, ray c^T with the ray
   /// (beta u, beta v, 1): `dp_dN_coeff` receives c. Outputs may be null.
   static MeasureStatus point(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv1,
                              Eigen::Vector3d* p, Eigen::Vector3d* dp_dbeta,
                              Eigen::Matrix3d* dp_dN, Eigen::Matrix<double, 3, 2>* dp_duv = nullptr,
                              Eigen::Vector3d* dp_dN_coeff = nullptr);
 
-  /// Transfer of a point first seen in a later frame (DESIGN.md §3): the reference-frame image
-  /// position of the point of plane N (reference frame) seen at `uv` in the camera with motion
-  /// (R, t) (A&P eq. 6: X_C = t + R X, t = (t_X, t_Y, t_Z) in scene units) and focal beta.
+  /// Transfer of a point first seen in a later frame (docs/conventions.md, "New features"): the
+  /// reference-frame image position of the point of plane N (reference frame) seen at `uv` in the
+  /// camera with motion (R, t) ([AS99] eq. 6: X_C = t + R X, t = (t_X, t_Y, t_Z) in scene units)
+  /// and focal beta.
   /// The ray X_C(l) = (u (1 + beta l), v (1 + beta l), l) meets R N . (X_C - t) = 1 at
   /// l = (1 + m.t - m_X u - m_Y v) / (beta (m_X u + m_Y v) + m_Z), m = R N; then X = R^T (X_C - t)
   /// and uv_ref = (X, Y) / (1 + beta Z). Fails (HorizonSingular / BehindCamera) when the ray is

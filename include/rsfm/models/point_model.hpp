@@ -1,5 +1,6 @@
 #pragma once
-// The pointwise structure model of Azarbayejani & Pentland (seed 000 §2, eqs. 1-7).
+// The pointwise structure model of Azarbayejani & Pentland ([AP95] as summarized in
+// [AS99] §2, eqs. 1-7; equation numbers are [AS99]'s; keys: docs/bibliography.md).
 // State x = (t_X, t_Y, t_Z beta, omega_X, omega_Y, omega_Z, beta, alpha_1..alpha_N): 7 + N.
 // Point i is on the first-frame ray through its reference image position (u_i, v_i):
 //   p_i = (u_i (1 + alpha_i beta), v_i (1 + alpha_i beta), alpha_i)   (eq. 5, origin on image plane)
@@ -14,7 +15,7 @@ namespace rsfm {
 
 class PointModel {
  public:
-  /// A&P need at least 7 points for the state to be observable (seed §3.1).
+  /// A&P need at least 7 points for the state to be observable ([AS99] §3.1).
   static constexpr int kMinPoints = 7;
   /// Structure columns one point's measurement depends on (its alpha).
   static constexpr int kStructurePerPoint = 1;
@@ -29,7 +30,7 @@ class PointModel {
   static int alphaIndex(int i) { return 7 + i; }
   int structureIndex(int i) const { return alphaIndex(i); }
 
-  /// Reference-frame 3-D point of eq. 5.
+  /// Reference-frame 3-D point of [AS99] eq. 5.
   static Eigen::Vector3d point(const Eigen::Vector2d& uv1, double alpha, double beta);
 
   /// Predicted measurement of point i and its Jacobian with respect to the whole state (2 x n).

@@ -1,5 +1,5 @@
 #pragma once
-// The projection chain shared by every point-based model (seed 000 eqs. 6-7 and appendix):
+// The projection chain shared by every point-based model ([AS99] eqs. 6-7 and appendix):
 //   q = (X_C, Y_C, beta Z_C) = t + D R p,   D = diag(1, 1, beta),   R = R(dq(omega)) R_g
 //   h = (q_1, q_2) / (1 + q_3)
 // where p is the reference-frame 3-D point (origin on the image plane) produced by the model's

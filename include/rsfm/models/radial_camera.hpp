@@ -1,8 +1,8 @@
 #pragma once
-// The image side of the camera for the final refinement (DESIGN.md §8; docs/estimate.md): the
+// The image side of the camera for the final refinement (docs/estimate.md §4): the
 // principal point and OpenCV's radial distortion, applied to the A&P projection.
 //
-// The A&P models predict h = (X_C, Y_C) / (1 + beta Z_C) (seed 000 eq. 7) in normalized units of s
+// The A&P models predict h = (X_C, Y_C) / (1 + beta Z_C) ([AS99] eq. 7) in normalized units of s
 // pixels about the nominal principal point c0. With the pinhole coordinates x = beta h (= X/Z in
 // the centre-of-projection frame), OpenCV's radial model D(x) = x (1 + k1 r^2 + k2 r^4), r = |x|,
 // and the principal point c = c0 + s dc, the observed normalized position is

@@ -1,8 +1,8 @@
 #pragma once
 // Running the recursive filters on real feature tracks (docs/estimate.md). No I/O, no OpenCV.
 //
-// Pixels -> A&P normalized coordinates: u = (x - c_x) / s, v = (y - c_y) / s (DESIGN.md §1), with
-// s = TrackFilterOptions::scale_px (default max(width, height) / 2), so f_px = s / beta.
+// Pixels -> A&P normalized coordinates: u = (x - c_x) / s, v = (y - c_y) / s (docs/conventions.md),
+// with s = TrackFilterOptions::scale_px (default max(width, height) / 2), so f_px = s / beta.
 // The reference frame is the first frame of the tracks. Tracks labelled l >= 0 are points of
 // plane l; -1 (outliers) and -2 (unused) never enter the filter. Tracks that end stop
 // contributing; tracks that start later join the plane models with a reference position

@@ -12,6 +12,7 @@
 #include "rsfm/io/atomic_file.hpp"
 #include "rsfm/pipeline/refine.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
+#include "rsfm/report/report.hpp"
 #include "rsfm/track/tracks.hpp"
 
 namespace rsfm::report {
@@ -51,11 +52,16 @@ nlohmann::json summaryHead(const std::string& model, int frames, int first_frame
 void summaryTail(nlohmann::json* j, const std::string& stopped, const std::string& command, double seconds,
                  const std::string& conventions, const nlohmann::json& extra);
 
+/// summary.json's "figures": {"written": [names], "missing": [names], "why": "..." (only when
+/// something is missing)} (docs/outputs.md, "Figures").
+nlohmann::json figuresJson(const Figures& f);
+
 /// The summary as JSON (also what summary.json holds).
 nlohmann::json estimateSummary(const EstimateReport& r);
 
 /// Writes every file into `files` (temporaries under `dir`; the caller commits) and returns the
-/// summary it wrote. Throws std::runtime_error with a one-line message (e.g. the plot failed).
+/// summary it wrote. Throws std::runtime_error with a one-line message when a file cannot be
+/// written; figures that cannot be made are left out and listed in the summary's "figures".
 nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesystem::path& dir, io::AtomicFileSet* files,
                          bool plots = true);
 

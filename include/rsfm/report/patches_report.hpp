@@ -5,6 +5,8 @@
 //   patches_data.csv  per row and frame: the trial-mean normal error and beta error
 //   patches.png/.svg  normal error against frame (scripts/plot_patches.py)
 #include <filesystem>
+
+#include "rsfm/report/report.hpp"
 #include <string>
 
 #include "rsfm/experiment/patches.hpp"
@@ -14,6 +16,6 @@ namespace rsfm::report {
 std::string patchesCsv(const PatchesResult& r);
 std::string patchesMarkdown(const PatchesResult& r, const std::string& command_line);
 std::string patchesFigureData(const PatchesResult& r);
-void writePatchesReport(const PatchesResult& r, const std::filesystem::path& dir, const std::string& command_line);
+Figures writePatchesReport(const PatchesResult& r, const std::filesystem::path& dir, const std::string& command_line);
 
 }  // namespace rsfm::report

@@ -5,6 +5,8 @@
 //   planes_data.csv per method, noise level and frame: normal error and translation error
 //   planes.png/.svg error against frame for each method (scripts/plot_planes.py)
 #include <filesystem>
+
+#include "rsfm/report/report.hpp"
 #include <string>
 
 #include "rsfm/experiment/planes.hpp"
@@ -14,6 +16,6 @@ namespace rsfm::report {
 std::string planesCsv(const PlanesResult& r);
 std::string planesMarkdown(const PlanesResult& r, const std::string& command_line);
 std::string planesFigureData(const PlanesResult& r);
-void writePlanesReport(const PlanesResult& r, const std::filesystem::path& dir, const std::string& command_line);
+Figures writePlanesReport(const PlanesResult& r, const std::filesystem::path& dir, const std::string& command_line);
 
 }  // namespace rsfm::report

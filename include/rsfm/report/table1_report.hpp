@@ -5,6 +5,8 @@
 //   fig1_data.csv trial-averaged estimates per frame (input of the figure)
 //   fig1.png/.svg the figure (matplotlib, scripts/plot_table1.py)
 #include <filesystem>
+
+#include "rsfm/report/report.hpp"
 #include <string>
 
 #include "rsfm/experiment/table1.hpp"
@@ -17,7 +19,7 @@ std::string table1FigureData(const Table1Result& r);
 
 /// Writes all outputs into dir all-or-nothing; throws std::runtime_error with a one-line
 /// message (nothing is left behind on failure).
-void writeTable1Report(const Table1Result& r, const std::filesystem::path& dir,
+Figures writeTable1Report(const Table1Result& r, const std::filesystem::path& dir,
                        const std::string& command_line);
 
 }  // namespace rsfm::report

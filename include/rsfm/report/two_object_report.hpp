@@ -5,6 +5,8 @@
 //   two_object_data.csv per noise level and frame: the errors of both objects and beta
 //   two_object.png/.svg errors against frame (scripts/plot_two_object.py)
 #include <filesystem>
+
+#include "rsfm/report/report.hpp"
 #include <string>
 
 #include "rsfm/experiment/two_object.hpp"
@@ -14,6 +16,6 @@ namespace rsfm::report {
 std::string twoObjectCsv(const TwoObjectResult& r);
 std::string twoObjectMarkdown(const TwoObjectResult& r, const std::string& command_line);
 std::string twoObjectFigureData(const TwoObjectResult& r);
-void writeTwoObjectReport(const TwoObjectResult& r, const std::filesystem::path& dir, const std::string& command_line);
+Figures writeTwoObjectReport(const TwoObjectResult& r, const std::filesystem::path& dir, const std::string& command_line);
 
 }  // namespace rsfm::report

@@ -1,5 +1,5 @@
 #pragma once
-// Synthetic box scene for the multi-plane experiments (issue 3; DESIGN §2). A cube of side
+// Synthetic box scene for the multi-plane experiments (issue 3; docs/planes.md). A cube of side
 // `side` centred at `centre` (A&P coordinates: origin on the image plane, COP at (0,0,-1/beta)),
 // turned by yaw (about y) and pitch (about x) so that the camera sees a corner and 2-3 faces;
 // the camera orbits the cube: R_k = R_y(k theta), t_k = (I - R_k) centre (as in Table 1, about the

@@ -1,12 +1,12 @@
 #pragma once
-// Synthetic scenes observed through affine patches (Calway's experiment; DESIGN.md §5).
+// Synthetic scenes observed through affine patches (Calway's experiment, [Cal00]; docs/patches.md).
 // A patch is a cluster of 3-D surface points around a centre point; its measurement in frame k is
 // the least-squares affine map of the cluster's images from frame k-1 to frame k about the centre's
 // image in frame k-1 (so curvature of the surface within the cluster is in the data, as with
 // Calway's clusters of points). Coordinates: A&P (origin on the image plane, COP at (0, 0, -1/beta)).
 //   - Sphere scene: 8 clusters on a sphere that translates along all three axes and rotates about
 //     x and y (sinusoidally); f = 1 (beta = 1) with a 53-degree field of view (image half-width 0.5).
-//   - Plane scene: the Table 1 scene (seed 000 §4) with a cluster around each of its points.
+//   - Plane scene: the Table 1 scene ([AS99] §4) with a cluster around each of its points.
 #include <Eigen/Core>
 #include <random>
 #include <vector>

@@ -1,5 +1,5 @@
 #pragma once
-// Synthetic scene of the paper's first experiment (seed 000 §4; DESIGN.md §4).
+// Synthetic scene of the paper's first experiment ([AS99] §4; docs/table1.md).
 // A plane N . X = 1 with N = 2 (1/sqrt(3), 0, 1) (unit normal 30 degrees off the optical axis,
 // distance 0.433 from the image-plane origin), ~30 points scattered uniformly on it, camera
 // motion = rotation about the y axis through c = (0, 0, 2): R_k = R_y(k * theta), t_k = (I - R_k) c,

@@ -1,5 +1,5 @@
 #pragma once
-// Two planar objects moving independently in front of one camera (issue 3; DESIGN §2):
+// Two planar objects moving independently in front of one camera (issue 3; docs/planes.md):
 // object 0 is the Table 1 plane N = 2(1/sqrt3, 0, 1) turning about the y axis through (0, 0, 2);
 // object 1 is a plane tilted about x, centred at `centre1`, turning about the x axis through its
 // centre while drifting. A&P coordinates; camera-k coordinates of object j: R_k^j X + t_k^j.

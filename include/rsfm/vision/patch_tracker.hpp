@@ -1,5 +1,5 @@
 #pragma once
-// Affine patch tracker (issue 5; DESIGN.md §5): each patch is a (2r+1)^2 template around a
+// Affine patch tracker (issue 5; docs/patches.md): each patch is a (2r+1)^2 template around a
 // Shi-Tomasi corner in the frame where it is first seen. In every later frame the 6-parameter
 // affine warp from that first appearance is estimated by inverse-compositional affine
 // Lucas-Kanade with a Gaussian window that warps with the patch and gain/bias normalization

@@ -1,5 +1,5 @@
 #pragma once
-// Assigning tracks to planes (docs/planes_finding.md): RANSAC homographies from the reference
+// Assigning tracks to planes (docs/estimate.md §1): RANSAC homographies from the reference
 // frame (the first frame of the tracks) to a later frame over the tracks alive in both, the
 // dominant plane first, then further planes from the remaining tracks; each plane is checked on
 // every frame; planes that do not move (static background) or move with another rigid motion than

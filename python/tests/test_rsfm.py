@@ -1,0 +1,180 @@
+"""pytest suite of the Python module (python/README.md), run by `make test` through ctest.
+
+Needs PYTHONPATH=<build>/python and RSFM_CLI=<build>/rsfm (tests/CMakeLists.txt sets both).
+The scene is synthetic (fixed seed): two faces of a box at right angles, 40 points each, seen by
+a 500 px pinhole camera that translates and turns over 60 frames, with 0.3 px noise.
+"""
+import gzip
+import json
+import math
+import os
+import pathlib
+import subprocess
+
+import numpy as np
+import pytest
+
+import rsfm
+from synthetic import FOCAL, H, W, box_scene, rot, write_tracks_csv
+
+CLI = os.environ.get("RSFM_CLI", "")
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return box_scene()
+
+
+@pytest.fixture(scope="module")
+def tracks_file(tmp_path_factory, scene):
+    rows, _ = scene
+    p = tmp_path_factory.mktemp("tracks") / "tracks.csv"
+    write_tracks_csv(rows, p)
+    return p
+
+
+def angle_deg(a, b):
+    c = abs(np.dot(a, b)) / (np.linalg.norm(a) * np.linalg.norm(b))
+    return math.degrees(math.acos(min(1.0, c)))
+
+
+def test_version_is_the_cli_version():
+    assert rsfm.__version__.count(".") == 2
+    if CLI:
+        out = subprocess.run([CLI, "--version"], capture_output=True, text=True, check=True).stdout.strip()
+        assert out == "rsfm " + rsfm.__version__
+
+
+def test_every_entry_point_has_a_docstring():
+    for f in (rsfm.estimate, rsfm.run, rsfm.options, rsfm.read_tracks, rsfm.PlaneFilter, rsfm.PlaneFilter.step):
+        assert f.__doc__ and len(f.__doc__) > 40, f
+
+
+def test_options_are_the_cli_options():
+    opts = rsfm.options("estimate")
+    assert opts["model"][0] == "planes"
+    assert "focal_px" in opts and "refine" in opts and "out" not in opts
+    run_opts = rsfm.options("run")
+    assert set(opts) < set(run_opts) and "max_tracks" in run_opts
+
+
+def test_estimate_recovers_the_scene(scene):
+    rows, (n1, n2) = scene
+    r = rsfm.estimate(rows, image_size=(W, H), quiet=True)
+    assert r["refined"]
+    assert r["focal_px"] == pytest.approx(FOCAL, rel=0.03)
+    planes = r["summary"]["planes"]
+    assert len(planes) == 2
+    angle = r["summary"]["angles_between_planes_deg"][0]["angle_deg"]
+    assert angle == pytest.approx(90.0, abs=2.0)
+    # Each true face normal has an estimated plane within 3 degrees.
+    est = [np.array(p) for p in planes]
+    for n in (n1, n2):
+        assert min(angle_deg(n, e) for e in est) < 3.0
+    assert r["trajectory"].shape == (60, 8)
+    assert r["online"]["normals"].shape == (60, 2, 3)
+    assert np.all(np.isfinite(r["online"]["focal_px"]))
+
+
+def test_estimate_gives_the_cli_numbers(tracks_file, tmp_path):
+    if not CLI:
+        pytest.skip("RSFM_CLI not set (ctest sets it)")
+    out = tmp_path / "est"
+    subprocess.run([CLI, "estimate", "--tracks", str(tracks_file), "--out", str(out), "--no-plots", "--quiet",
+                    "--model", "planes"], check=True)
+    cli_summary = json.loads((out / "summary.json").read_text())
+    r = rsfm.estimate(str(tracks_file), model="planes", quiet=True)
+    s = r["summary"]
+    assert s["focal_px"] == pytest.approx(cli_summary["focal_px"], rel=1e-12)
+    assert s["focal_sd_px"] == pytest.approx(cli_summary["focal_sd_px"], rel=1e-12)
+    for a, b in zip(s["planes"], cli_summary["planes"]):
+        assert np.allclose(a, b, atol=1e-12)
+    tum = np.loadtxt(out / "trajectory.tum")
+    assert tum.shape == r["trajectory"].shape
+    assert np.allclose(tum, r["trajectory"], atol=2e-9)  # the file has 9 decimals
+    labels = np.loadtxt(out / "labels.csv", delimiter=",", skiprows=1, dtype=int)
+    assert np.array_equal(r["labels"][labels[:, 0]], labels[:, 1])
+    # Same run from the array of the same rows: the same numbers.
+    rows, size, pp = rsfm.read_tracks(str(tracks_file))
+    r2 = rsfm.estimate(rows, image_size=size, principal_point=pp, model="planes", quiet=True)
+    assert r2["focal_px"] == pytest.approx(r["focal_px"], rel=1e-12)
+
+
+def test_options_take_effect(scene):
+    rows, _ = scene
+    known = rsfm.estimate(rows, image_size=(W, H), focal_px=612.0, quiet=True)
+    assert known["focal_px"] == pytest.approx(612.0)
+    online = rsfm.estimate(rows, image_size=(W, H), refine="none", quiet=True)
+    assert not online["refined"]
+
+
+def test_errors_are_the_cli_messages(scene, tracks_file):
+    rows, _ = scene
+    with pytest.raises(rsfm.InputError, match="--model must be point, plane, planes or patches"):
+        rsfm.estimate(rows, image_size=(W, H), model="cube")
+    with pytest.raises(rsfm.InputError, match="unknown option 'bogus'"):
+        rsfm.estimate(rows, image_size=(W, H), bogus=1)
+    with pytest.raises(rsfm.InputError, match="writes no files"):
+        rsfm.estimate(rows, image_size=(W, H), out="x")
+    with pytest.raises(rsfm.InputError, match="needs image_size"):
+        rsfm.estimate(rows)
+    with pytest.raises(rsfm.InputError, match="4 columns|columns, expected 4"):
+        rsfm.estimate(rows[:, :3], image_size=(W, H))
+    dup = np.vstack([rows[:1], rows])
+    with pytest.raises(rsfm.InputError, match="line"):
+        rsfm.estimate(dup, image_size=(W, H))
+    with pytest.raises(rsfm.InputError, match="no-such-file"):
+        rsfm.estimate("no-such-file.csv")
+    assert issubclass(rsfm.InputError, ValueError)
+
+
+def test_plane_filter_step_by_step():
+    """The filter alone on the noise-free scene, both faces (one plane alone does not fix this
+    scene's focal length: `model="plane"` reports 235 px), observations in normalized units. With
+    0.3 px noise the filter alone ends at 447 +- 5 px (the published filter's bias, which the
+    refinement of estimate() removes: 511 +- 13 px), so the noisy scene is left to estimate()."""
+    rows, (n1, n2) = box_scene(noise_px=0.0)
+    s = float(max(W, H))
+    ref = rows[rows[:, 0] == 0]
+    ids = ref[:, 1].astype(int)
+    labels = (ids >= 40).astype(int)
+    uv0 = np.column_stack([(ref[:, 2] - (W - 1) / 2) / s, (ref[:, 3] - (H - 1) / 2) / s])
+    # Started 10 % off in focal length and each normal 10 degrees off (the pipeline's homography
+    # start does this; from a frontal start, 45 degrees off, the plain EKF does not converge here).
+    turn = rot([0.0, 1.0, 0.0], math.radians(10.0))
+    f = rsfm.PlaneFilter(uv0, labels=list(labels), planes=2, beta0=s / 550.0, sigma_uv=0.3 / s,
+                         normals0=np.vstack([turn @ n1, turn @ n2]))
+    assert f.state.shape == (13,) and f.covariance.shape == (13, 13)
+    index = {int(t): i for i, t in enumerate(ids)}
+    for k in range(1, 60):
+        obs = rows[(rows[:, 0] == k) & np.isin(rows[:, 1], ids)]
+        st = f.step([index[int(t)] for t in obs[:, 1]],
+                    np.column_stack([(obs[:, 2] - (W - 1) / 2) / s, (obs[:, 3] - (H - 1) / 2) / s]))
+        assert st["healthy"] and st["applied"]
+    assert f.frames == 59
+    P = f.covariance
+    assert np.allclose(P, P.T, atol=1e-12) and np.min(np.linalg.eigvalsh(P)) > -1e-12
+    focal = s / f.beta
+    focal_sd = s * math.sqrt(P[6, 6]) / f.beta ** 2
+    assert focal == pytest.approx(FOCAL, rel=0.03)  # measured: 490 +- 6 px from 550 px
+    assert abs(focal - FOCAL) < 3 * focal_sd
+    assert angle_deg(f.normals[0], n1) < 2.0 and angle_deg(f.normals[1], n2) < 2.0  # from 10 degrees off
+    with pytest.raises(rsfm.InputError, match="outside"):
+        f.step([len(ids) + 5], np.zeros((1, 2)))
+    with pytest.raises(rsfm.InputError, match="label"):
+        rsfm.PlaneFilter(uv0, labels=[3] * len(ids), planes=2)
+
+
+BOX_GZ = pathlib.Path("/usr/share/doc/opencv-doc/opencv4/html/box.mp4.gz")
+
+
+def test_run_tracks_a_video(tmp_path):
+    if not BOX_GZ.exists():
+        pytest.skip(f"{BOX_GZ} not installed (apt-get install opencv-doc; make test installs it)")
+    video = tmp_path / "box.mp4"
+    video.write_bytes(gzip.decompress(BOX_GZ.read_bytes()))
+    r = rsfm.run(str(video), first=1, last=60, quiet=True)
+    assert r["image_size"] == (640, 480)
+    assert r["tracks"].shape[1] == 4 and len(r["tracks"]) > 1000
+    assert r["trajectory"].shape[0] == 60
+    assert r["focal_px"] is None or 300 < r["focal_px"] < 2000
