@@ -2,6 +2,7 @@
 // tracks, and the report (docs/estimate.md, docs/outputs.md).
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <memory>
@@ -14,6 +15,7 @@
 #include "rsfm/io/atomic_file.hpp"
 #include "rsfm/report/estimate_report.hpp"
 #include "rsfm/report/patch_report.hpp"
+#include "rsfm/report/html_report.hpp"
 #include "rsfm/io/patches_io.hpp"
 #include "rsfm/pipeline/estimate.hpp"
 #include "rsfm/pipeline/patch_pipeline.hpp"
@@ -256,9 +258,45 @@ bool figuresWritten(const nlohmann::json& summary) {
   return summary.contains("figures") && !summary["figures"]["written"].empty();
 }
 
-std::function<void(const std::string&)> noteTo(bool quiet) {
-  if (quiet) return {};
-  return [](const std::string& m) { fmt::print(stderr, "{}\n", m); };
+/// The pipeline's notes: printed unless quiet; its warnings (lines "warning: ...") also kept for
+/// report.html.
+std::function<void(const std::string&)> noteTo(bool quiet, std::vector<std::string>* warnings) {
+  return [quiet, warnings](const std::string& m) {
+    if (m.rfind("warning: ", 0) == 0) warnings->push_back(m.substr(9));
+    if (!quiet) fmt::print(stderr, "{}\n", m);
+  };
+}
+
+/// Captions of the figures report.html embeds (the PNGs; the SVGs are the same plots).
+std::string captionOf(const std::string& name) {
+  if (name == "motion.png") return "Camera motion per frame: position and rotation in the first camera frame (trajectory.tum)";
+  if (name == "normals.png") return "Plane normals per frame, the filter's online estimate with its sd (planes.csv)";
+  if (name == "focal.png") return "Focal length per frame, the filter's online estimate with its sd (planes.csv)";
+  if (name == "patch_run.png") return "Patch normals per frame (patch_normals.csv)";
+  return name;
+}
+
+/// report.html (docs/outputs.md): added to `files` last, so that it lists every file of the run.
+void writeHtmlReport(io::AtomicFileSet* files, const std::string& dir, const nlohmann::json& summary,
+                     const report::Figures& fig, bool plots, const std::vector<std::string>& warnings,
+                     const vision::OverlayInfo* overlay, const std::string& source) {
+  report::HtmlReport h;
+  h.title = "rsfm report: " + (source.empty() ? std::string("tracks") : source);
+  h.summary = summary;
+  for (size_t i = 0; i < fig.written.size() && i < fig.files.size(); ++i)
+    if (fig.written[i].size() > 4 && fig.written[i].compare(fig.written[i].size() - 4, 4, ".png") == 0)
+      h.figures.emplace_back(captionOf(fig.written[i]), fig.files[i]);
+  h.figures_note = !plots ? "--no-plots" : fig.why;
+  h.warnings = warnings;
+  if (overlay) {
+    h.overlay_file = "overlay.mp4";
+    h.overlay_codec = overlay->codec;
+    h.poster_png = overlay->poster_png;
+  }
+  for (const auto& f : files->finals()) h.files.push_back(f.filename().string());
+  h.files.push_back("report.html");
+  std::sort(h.files.begin(), h.files.end());
+  files->write(std::filesystem::path(dir) / "report.html", report::htmlReport(h));
 }
 
 }  // namespace
@@ -290,8 +328,9 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
 int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOverlay& overlay, double t_start,
                       bool write_tracks) {
   EstimateResult r;
+  std::vector<std::string> warnings;
   try {
-    r = estimate(tracks, e.est, noteTo(e.quiet),
+    r = estimate(tracks, e.est, noteTo(e.quiet, &warnings),
                  e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
   } catch (const std::invalid_argument& ex) {
     return fail(kBadInput, ex.what());
@@ -308,12 +347,21 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
   if (int rc = guarded([&] {
         io::AtomicFileSet files;
         rep.seconds = now() - t_start;
-        summary = report::writeEstimateReport(rep, e.out, &files, e.plots);
+        vision::OverlayInfo ov;
+        if (overlay) {
+          ov = overlay(r, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
+          rep.extra["overlay"] = {{"file", "overlay.mp4"}, {"codec", ov.codec}};
+          if (!ov.warning.empty()) warnings.push_back(ov.warning);
+        }
+        report::Figures fig;
+        summary = report::writeEstimateReport(rep, e.out, &files, e.plots, &fig);
+        if (!fig.missing.empty()) warnings.push_back(fig.warning());
         if (write_tracks) files.write(std::filesystem::path(e.out) / "tracks.csv", io::tracksToString(tracks));
         if (const std::string yaml = cameraYamlOf(r, e.est, tracks.image); !yaml.empty())
           files.write(std::filesystem::path(e.out) / "camera.yaml", yaml);
-        if (overlay) overlay(r, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
+        writeHtmlReport(&files, e.out, summary, fig, e.plots, warnings, overlay ? &ov : nullptr, tracks.source);
         files.commit();
+        if (!ov.warning.empty()) fmt::print(stderr, "rsfm: warning: {}\n", ov.warning);
       }))
     return rc;
   warnMissingFigures(summary);
@@ -334,7 +382,7 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
     for (const auto& a : s["angles_between_planes_deg"])
       fmt::print(stderr, ", angle between planes {} and {}: {:.1f} deg{}", a["planes"][0].get<int>(), a["planes"][1].get<int>(),
                  a["angle_deg"].get<double>(), a.contains("determined") && !a["determined"].get<bool>() ? " (not determined)" : "");
-    fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum{}, planes.csv, poses.csv, labels.csv{}{}{}\n",
+    fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum{}, planes.csv, poses.csv, labels.csv, report.html{}{}{}\n",
                e.shown_out.empty() ? e.out : e.shown_out,
                r.refined.ok ? ", trajectory_online.tum" : "",
                plotted ? ", motion/normals/focal.png" : "", write_tracks ? ", tracks.csv" : "",
@@ -348,8 +396,9 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
                            double t_start, bool write_patches) {
   nlohmann::json start_json;
   PatchEstimateResult pr;
+  std::vector<std::string> warnings;
   try {
-    pr = estimatePatches(tracks, e.pat, noteTo(e.quiet),
+    pr = estimatePatches(tracks, e.pat, noteTo(e.quiet, &warnings),
                          e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
   } catch (const std::invalid_argument& ex) {
     return fail(kBadInput, ex.what());
@@ -369,10 +418,26 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
   if (int rc = guarded([&] {
         io::AtomicFileSet files;
         rep.seconds = now() - t_start;
-        summary = report::writePatchReport(rep, e.out, &files, e.plots);
+        vision::OverlayInfo ov;
+        if (overlay) {
+          ov = overlay(res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
+          rep.extra["overlay"] = {{"file", "overlay.mp4"}, {"codec", ov.codec}};
+          if (!ov.warning.empty()) warnings.push_back(ov.warning);
+        }
+        report::Figures fig;
+        summary = report::writePatchReport(rep, e.out, &files, e.plots, &fig);
+        if (!fig.missing.empty()) warnings.push_back(fig.warning());
+        if (summary.contains("patch_filter_focal_z") && summary["patch_filter_focal_z"].is_number() &&
+            std::abs(summary["patch_filter_focal_z"].get<double>()) > 3)
+          warnings.push_back(fmt::format("the patch filter's focal length {:.1f} +- {:.1f} px disagrees with the motion "
+                                         "check's ({:.1f} sigma); the check's bundle adjustment is reported",
+                                         summary["patch_filter_focal_px"].get<double>(),
+                                         summary["patch_filter_focal_sd_px"].get<double>(),
+                                         summary["patch_filter_focal_z"].get<double>()));
         if (write_patches) files.write(std::filesystem::path(e.out) / "patches.csv", io::patchesToString(tracks));
-        if (overlay) overlay(res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
+        writeHtmlReport(&files, e.out, summary, fig, e.plots, warnings, overlay ? &ov : nullptr, tracks.source);
         files.commit();
+        if (!ov.warning.empty()) fmt::print(stderr, "rsfm: warning: {}\n", ov.warning);
       }))
     return rc;
   warnMissingFigures(summary);
@@ -389,7 +454,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
             : fmt::format("focal {:.1f} +- {:.1f} px (from the motion check)", summary["focal_px"].get<double>(),
                           summary["focal_sd_px"].get<double>());
     fmt::print(stderr, "estimate: {} frames, {} patches, {}; patch normals not determined: {}; wrote {}/summary.json, "
-               "trajectory.tum, patch_normals.csv{}{}{}\n",
+               "trajectory.tum, patch_normals.csv, report.html{}{}{}\n",
                res.frames.size(), res.entered, focal, summary["not_determined_why"].get<std::string>(),
                e.shown_out.empty() ? e.out : e.shown_out, plotted ? ", patch_run.png" : "", write_patches ? ", patches.csv" : "",
                overlay ? ", overlay.mp4" : "");
@@ -404,7 +469,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
     fmt::print(stderr,
                "estimate: {} frames, {} patches ({} joined, {} left), focal {:.1f} +- {:.1f} px; last frame: {} of {} patch "
                "normals within 5 deg of their median (median {:.2f} deg); wrote {}/summary.json, trajectory.tum, "
-               "patch_normals.csv{}{}{}\n",
+               "patch_normals.csv, report.html{}{}{}\n",
                res.frames.size(), res.entered, res.joined, res.left, summary["focal_px"].get<double>(),
                summary["focal_sd_px"].get<double>(), ln["within_5deg"].get<int>(),
                summary["patches"]["live_last_frame"].get<int>(), ln["angle_to_median_deg"]["median"].get<double>(),

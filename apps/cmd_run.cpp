@@ -41,7 +41,7 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
         PatchOverlay overlay;
         if (c->overlay)
           overlay = [&](const PatchRunResult& res, const std::filesystem::path& tmp) {
-            vision::writePatchOverlay(c->input, c->t.range, pt, res, tmp);
+            return vision::writePatchOverlay(c->input, c->t.range, pt, res, tmp);
           };
         return finish(patchEstimateAndReport(pt, e, overlay, t0, true));
       }
@@ -51,7 +51,7 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
       TrackOverlay overlay;
       if (c->overlay)
         overlay = [&](const EstimateResult& r, const std::filesystem::path& tmp) {
-          vision::writeOverlay(c->input, c->t.range, tracks, r.labels(), r.main(), tmp);
+          return vision::writeOverlay(c->input, c->t.range, tracks, r.labels(), r.main(), tmp);
         };
       return finish(estimateAndReport(tracks, e, overlay, t0, true));
     }});

@@ -13,6 +13,7 @@
 #include "rsfm/pipeline/estimate.hpp"
 #include "rsfm/pipeline/patch_pipeline.hpp"
 #include "rsfm/report/estimate_report.hpp"
+#include "rsfm/vision/overlay.hpp"
 
 namespace rsfm::cli {
 
@@ -53,9 +54,10 @@ struct EstimateRunReport {
   std::optional<report::GivenCamera> given;
 };
 
-/// Writes the overlay video of a result to a temporary file (committed with the other outputs).
-using TrackOverlay = std::function<void(const EstimateResult&, const std::filesystem::path&)>;
-using PatchOverlay = std::function<void(const PatchRunResult&, const std::filesystem::path&)>;
+/// Writes the overlay video of a result to a temporary file (committed with the other outputs);
+/// returns its codec, a warning when it fell back from H.264, and a poster frame.
+using TrackOverlay = std::function<vision::OverlayInfo(const EstimateResult&, const std::filesystem::path&)>;
+using PatchOverlay = std::function<vision::OverlayInfo(const PatchRunResult&, const std::filesystem::path&)>;
 
 /// The pipeline (pipeline/estimate.hpp) + report (+ the overlay when given). Returns the exit code.
 int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOverlay& overlay, double t_start,

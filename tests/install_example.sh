@@ -57,8 +57,9 @@ done
 echo "install_example: the installed rsfm found its scripts and wrote every figure"
 
 # The installed Python module.
-if [ -d "$PREFIX/lib/python3/dist-packages/rsfm" ]; then
-  v=$(PYTHONPATH="$PREFIX/lib/python3/dist-packages" "$PY" -c "import rsfm; print(rsfm.__version__)")
+PYDIR=$(ls -d "$PREFIX"/lib/python3.*/dist-packages 2>/dev/null | head -1 || true)
+if [ -n "$PYDIR" ] && [ -d "$PYDIR/rsfm" ]; then
+  v=$(cd "$WORK" && PYTHONPATH="$PYDIR" "$PY" -c "import rsfm; print(rsfm.__version__)")
   [ "rsfm $v" = "$("$PREFIX/bin/rsfm" --version)" ] || fail "installed Python module version $v"
   echo "install_example: import rsfm from the prefix: $v"
 fi
@@ -79,6 +80,8 @@ s = json.load(open('$WORK/est/summary.json'))
 assert s['figures']['written'] == [] and 'focal.png' in s['figures']['missing'] and 'not found' in s['figures']['why'], s['figures']
 assert s['focal_px'] is not None
 "
+/usr/bin/python3 "$SRC/tests/check_report_html.py" "$WORK/est" || fail "report.html without figures"
+grep -q 'id="warnings"' "$WORK/est/report.html" || fail "report.html does not show the missing figures' warning"
 echo "install_example: without scripts: numbers written, warning: $(head -1 "$WORK/warn.txt")"
 mv "$PREFIX/share/rsfm/scripts.gone" "$PREFIX/share/rsfm/scripts"
 "$PREFIX/bin/rsfm" estimate --tracks "$WORK/tracks.csv" --out "$WORK/est2" --quiet

@@ -9,8 +9,14 @@ TMP="$(mktemp -d)"
 trap 'rm -rf "$TMP"' EXIT
 "$RSFM" render box --out "$TMP/r" --frames 100 --quiet
 "$RSFM" run "$TMP/r/video.mp4" --out "$TMP/e" --quiet
+# report.html well-formed and complete (before evaluate adds its files), the overlay H.264.
+/usr/bin/python3 "$(dirname "$0")/check_report_html.py" "$TMP/e"
+codec=$(ffprobe -v error -select_streams v:0 -show_entries stream=codec_name -of csv=p=0 "$TMP/e/overlay.mp4" 2>/dev/null || echo "no ffprobe")
+case "$codec" in h264) echo "overlay.mp4: H.264" ;; "no ffprobe") echo "overlay.mp4: ffprobe missing, codec not checked" ;;
+  *) echo "FAIL overlay.mp4 codec '$codec', expected h264"; exit 1 ;; esac
+grep -q '"codec": "h264"' "$TMP/e/summary.json" || { echo "FAIL summary.json does not record the overlay's codec h264"; exit 1; }
 "$RSFM" evaluate --estimate "$TMP/e" --truth "$TMP/r/truth" >"$TMP/table.txt"
-for f in trajectory.tum planes.csv summary.json labels.csv tracks.csv overlay.mp4 motion.png normals.png focal.png \
+for f in trajectory.tum planes.csv summary.json labels.csv tracks.csv overlay.mp4 report.html motion.png normals.png focal.png \
          motion.svg normals.svg focal.svg evaluation.json evaluation.md; do
   [ -s "$TMP/e/$f" ] || { echo "FAIL missing output $f"; exit 1; }
 done
@@ -54,6 +60,7 @@ sys.exit(0 if focal < 5 and ate < 3 and med < 3 and len(old) >= 10 and within >=
 PY
 patch_chain() {  # patch_chain RENDER_DIR OUT_DIR MIN_AGE LABEL
   "$RSFM" run "$1/video.mp4" --model patches --out "$2" --quiet || { echo "FAIL patch run ($4)"; exit 1; }
+  /usr/bin/python3 "$(dirname "$0")/check_report_html.py" "$2" || exit 1
   "$RSFM" evaluate --estimate "$2" --truth "$1/truth" >"$2.table.txt" || { echo "FAIL evaluate ($4)"; exit 1; }
   for f in trajectory.tum patch_normals.csv summary.json patches.csv overlay.mp4 patch_run.png patch_run.svg \
            evaluation.json; do

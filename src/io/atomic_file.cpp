@@ -180,6 +180,12 @@ void AtomicFileSet::commit() {
   done_ = true;
 }
 
+std::vector<fs::path> AtomicFileSet::finals() const {
+  std::vector<fs::path> out;
+  for (const auto& f : files_) out.push_back(f.second);
+  return out;
+}
+
 void AtomicFileSet::drop(const fs::path& temp) {
   for (auto it = files_.begin(); it != files_.end(); ++it)
     if (it->first == temp) {

@@ -326,7 +326,7 @@ std::string posesCsv(const TrackFilterResult& res, const std::vector<Eigen::Matr
 }  // namespace
 
 nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesystem::path& dir, AtomicFileSet* files,
-                         bool plots) {
+                                   bool plots, Figures* figures) {
   const bool refined = refinedOk(r);
   const TrackFilterResult& online = *r.result;
   const TrackFilterResult& res = refined ? r.refined->state : online;
@@ -356,9 +356,10 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
   files->write(dir / "labels.csv", lc);
   nlohmann::json summary = estimateSummary(r);
   if (plots) {
-    summary["figures"] = figuresJson(makeFigures(files, dir, "plot_estimate.py", {tum_tmp.string(), planes_tmp.string()},
-                                                 {"motion.png", "motion.svg", "normals.png", "normals.svg", "focal.png",
-                                                  "focal.svg"}));
+    const Figures fig = makeFigures(files, dir, "plot_estimate.py", {tum_tmp.string(), planes_tmp.string()},
+                                    {"motion.png", "motion.svg", "normals.png", "normals.svg", "focal.png", "focal.svg"});
+    summary["figures"] = figuresJson(fig);
+    if (figures) *figures = fig;
   }
   files->write(dir / "summary.json", summary.dump(2) + "\n");
   return summary;

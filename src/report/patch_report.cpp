@@ -116,7 +116,8 @@ nlohmann::json patchSummary(const PatchReport& r) {
   return j;
 }
 
-nlohmann::json writePatchReport(const PatchReport& r, const std::filesystem::path& dir, AtomicFileSet* files, bool plots) {
+nlohmann::json writePatchReport(const PatchReport& r, const std::filesystem::path& dir, AtomicFileSet* files, bool plots,
+                                Figures* figures) {
   const PatchRunResult& res = *r.result;
   std::vector<TumPose> poses;
   for (const auto& f : res.frames) {
@@ -145,8 +146,9 @@ nlohmann::json writePatchReport(const PatchReport& r, const std::filesystem::pat
   const auto normals_tmp = files->write(dir / "patch_normals.csv", pc);
   nlohmann::json summary = patchSummary(r);
   if (plots) {
-    summary["figures"] = figuresJson(makeFigures(files, dir, "plot_patch_run.py", {normals_tmp.string()},
-                                                 {"patch_run.png", "patch_run.svg"}));
+    const Figures fig = makeFigures(files, dir, "plot_patch_run.py", {normals_tmp.string()}, {"patch_run.png", "patch_run.svg"});
+    summary["figures"] = figuresJson(fig);
+    if (figures) *figures = fig;
   }
   files->write(dir / "summary.json", summary.dump(2) + "\n");
   return summary;

@@ -69,6 +69,7 @@ Figures makeFigures(io::AtomicFileSet* files, const std::filesystem::path& dir, 
     for (const auto& t : temps) inputs.push_back(t.string());
     runScript(script, inputs);
     out.written = names;
+    out.files = temps;
   } catch (const std::exception& e) {
     for (const auto& t : temps) files->drop(t);
     out.missing = names;

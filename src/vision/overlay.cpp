@@ -4,6 +4,7 @@
 
 #include <algorithm>
 
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 #include <stdexcept>
@@ -55,9 +56,35 @@ std::vector<std::vector<Eigen::Vector3d>> planeGrid(const Tracks& tracks, const 
   return g;
 }
 
+/// Opens `vw` for H.264 in MP4 (fourcc avc1, FFmpeg's libx264: playable in browsers), else
+/// MPEG-4 Part 2 (mp4v) with a warning in `info` (the encoder missing, or a size H.264's 4:2:0
+/// sampling refuses: odd width or height).
+void openWriter(cv::VideoWriter* vw, const std::filesystem::path& path, double fps, cv::Size size, OverlayInfo* info) {
+  if (vw->open(path.string(), cv::CAP_FFMPEG, cv::VideoWriter::fourcc('a', 'v', 'c', '1'), fps, size)) {
+    info->codec = "h264";
+    return;
+  }
+  if (vw->open(path.string(), cv::CAP_FFMPEG, cv::VideoWriter::fourcc('m', 'p', '4', 'v'), fps, size)) {
+    info->codec = "mpeg4";
+    info->warning = fmt::format("overlay.mp4 is MPEG-4 Part 2, which browsers do not play: no H.264 encoder for {}x{} "
+                                "frames (FFmpeg's libx264 missing, or an odd frame size)",
+                                size.width, size.height);
+    return;
+  }
+  throw std::runtime_error(fmt::format("{}: cannot open a video writer (H.264 or MPEG-4)", path.string()));
+}
+
+/// The poster: one frame (the middle one) of the overlay as PNG bytes.
+void keepPoster(const cv::Mat& bgr, size_t fi, size_t frames, OverlayInfo* info) {
+  if (fi != frames / 2) return;
+  cv::Mat small = bgr;
+  if (bgr.cols > 960) cv::resize(bgr, small, cv::Size(960, bgr.rows * 960 / bgr.cols), 0, 0, cv::INTER_AREA);
+  cv::imencode(".png", small, info->poster_png);
+}
+
 }  // namespace
 
-void writeOverlay(const std::string& input, FrameRange range, const Tracks& tracks, const std::vector<int>& labels,
+OverlayInfo writeOverlay(const std::string& input, FrameRange range, const Tracks& tracks, const std::vector<int>& labels,
                   const TrackFilterResult& result, const std::filesystem::path& path) {
   FrameSource src(input);
   const double s = result.scale_px;
@@ -65,6 +92,7 @@ void writeOverlay(const std::string& input, FrameRange range, const Tracks& trac
   std::vector<std::vector<std::vector<Eigen::Vector3d>>> grids;
   for (int j = 0; j < static_cast<int>(fin.N.size()); ++j) grids.push_back(planeGrid(tracks, labels, j, fin, s));
   cv::VideoWriter vw;
+  OverlayInfo info;
   cv::Mat img, bgr;
   size_t fi = 0;
   while (src.read(&img) && fi < result.frames.size()) {
@@ -72,10 +100,7 @@ void writeOverlay(const std::string& input, FrameRange range, const Tracks& trac
     const int k = src.index() - range.first;  // index within tracks.frames
     if (img.channels() == 1) cv::cvtColor(img, bgr, cv::COLOR_GRAY2BGR);
     else bgr = img.clone();
-    if (!vw.isOpened()) {
-      vw.open(path.string(), cv::VideoWriter::fourcc('m', 'p', '4', 'v'), src.fps(), bgr.size());
-      if (!vw.isOpened()) throw std::runtime_error(fmt::format("{}: cannot open a video writer (mp4v)", path.string()));
-    }
+    if (!vw.isOpened()) openWriter(&vw, path, src.fps(), bgr.size(), &info);
     const TrackFrame& tf = result.frames[fi];
     // Plane grids with this frame's motion: u = X_C / (1 + beta Z_C), X_C = t + R X.
     for (size_t j = 0; j < grids.size(); ++j) {
@@ -114,16 +139,19 @@ void writeOverlay(const std::string& input, FrameRange range, const Tracks& trac
     cv::putText(bgr, fmt::format("frame {}  f = {:.0f} px", tf.frame, s / tf.beta), {10, 22}, cv::FONT_HERSHEY_SIMPLEX,
                 0.6, {0, 0, 0}, 1, cv::LINE_AA);
     vw.write(bgr);
+    keepPoster(bgr, fi, result.frames.size(), &info);
     ++fi;
   }
   if (fi == 0) throw std::runtime_error(input + ": no frame to draw the overlay on");
+  return info;
 }
 
-void writePatchOverlay(const std::string& input, FrameRange range, const PatchTracks& tracks, const PatchRunResult& result,
+OverlayInfo writePatchOverlay(const std::string& input, FrameRange range, const PatchTracks& tracks, const PatchRunResult& result,
                        const std::filesystem::path& path) {
   FrameSource src(input);
   const double s = result.scale_px;
   cv::VideoWriter vw;
+  OverlayInfo info;
   cv::Mat img, bgr;
   size_t fi = 0;
   const Eigen::Vector2d cpx(tracks.image.cx, tracks.image.cy);
@@ -132,10 +160,7 @@ void writePatchOverlay(const std::string& input, FrameRange range, const PatchTr
     const int k = src.index() - range.first;
     if (img.channels() == 1) cv::cvtColor(img, bgr, cv::COLOR_GRAY2BGR);
     else bgr = img.clone();
-    if (!vw.isOpened()) {
-      vw.open(path.string(), cv::VideoWriter::fourcc('m', 'p', '4', 'v'), src.fps(), bgr.size());
-      if (!vw.isOpened()) throw std::runtime_error(fmt::format("{}: cannot open a video writer (mp4v)", path.string()));
-    }
+    if (!vw.isOpened()) openWriter(&vw, path, src.fps(), bgr.size(), &info);
     const PatchRunFrame& f = result.frames[fi];
     const NormalAgreement agree = normalAgreement(f);
     for (size_t i = 0; i < f.patches.size(); ++i) {
@@ -176,9 +201,11 @@ void writePatchOverlay(const std::string& input, FrameRange range, const PatchTr
     cv::putText(bgr, text, {10, 22}, cv::FONT_HERSHEY_SIMPLEX, 0.5, {255, 255, 255}, 2, cv::LINE_AA);
     cv::putText(bgr, text, {10, 22}, cv::FONT_HERSHEY_SIMPLEX, 0.5, {0, 0, 0}, 1, cv::LINE_AA);
     vw.write(bgr);
+    keepPoster(bgr, fi, result.frames.size(), &info);
     ++fi;
   }
   if (fi == 0) throw std::runtime_error(input + ": no frame to draw the overlay on");
+  return info;
 }
 
 }  // namespace rsfm::vision

@@ -37,6 +37,8 @@ class AtomicFileSet {
   /// Removes one temporary (as returned by temp() or write()) from the set: commit() leaves no
   /// file for it (a figure whose script failed, docs/outputs.md "Figures").
   void drop(const std::filesystem::path& temp);
+  /// The final paths of the files in the set, in the order they were added.
+  std::vector<std::filesystem::path> finals() const;
   /// Renames every temporary into place.
   void commit();
   /// Removes every temporary.

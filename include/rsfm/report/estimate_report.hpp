@@ -63,6 +63,6 @@ nlohmann::json estimateSummary(const EstimateReport& r);
 /// summary it wrote. Throws std::runtime_error with a one-line message when a file cannot be
 /// written; figures that cannot be made are left out and listed in the summary's "figures".
 nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesystem::path& dir, io::AtomicFileSet* files,
-                         bool plots = true);
+                                   bool plots = true, Figures* figures = nullptr);
 
 }  // namespace rsfm::report

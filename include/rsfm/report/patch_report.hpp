@@ -8,6 +8,7 @@
 #include <string>
 
 #include "rsfm/io/atomic_file.hpp"
+#include "rsfm/report/report.hpp"
 #include "rsfm/pipeline/motion_check.hpp"
 #include "rsfm/pipeline/patch_pipeline.hpp"
 #include "rsfm/track/patches.hpp"
@@ -27,6 +28,6 @@ struct PatchReport {
 nlohmann::json patchSummary(const PatchReport& r);
 /// Writes every file into `files` (the caller commits); returns the summary.
 nlohmann::json writePatchReport(const PatchReport& r, const std::filesystem::path& dir, io::AtomicFileSet* files,
-                                bool plots = true);
+                                bool plots = true, Figures* figures = nullptr);
 
 }  // namespace rsfm::report

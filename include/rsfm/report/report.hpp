@@ -26,6 +26,7 @@ std::string scriptsDirectory();
 /// is a warning, never a lost result: its files are left out and `why` says why in one line.
 struct Figures {
   std::vector<std::string> written;  ///< file names made (e.g. "motion.png")
+  std::vector<std::filesystem::path> files;  ///< where each of `written` is until committed
   std::vector<std::string> missing;  ///< file names that could not be made
   std::string why;                   ///< one line, when `missing` is not empty
   /// "figures not written (a.png, a.svg): why", or "" when every figure was made.

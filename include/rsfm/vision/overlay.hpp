@@ -14,9 +14,17 @@
 
 namespace rsfm::vision {
 
-/// Writes the overlay video of frames result.frames (input re-read over `range`) to `path`
-/// (codec mp4v; the container follows the extension). Throws io::InputError / std::runtime_error.
-void writeOverlay(const std::string& input, FrameRange range, const Tracks& tracks, const std::vector<int>& labels,
+/// What an overlay video was written with.
+struct OverlayInfo {
+  std::string codec;                    ///< "h264" (browser-playable) or "mpeg4" (the fallback)
+  std::string warning;                  ///< one line when the fallback was used
+  std::vector<unsigned char> poster_png;  ///< the middle frame as PNG (at most 960 px wide)
+};
+
+/// Writes the overlay video of frames result.frames (input re-read over `range`) to `path`: H.264
+/// (FFmpeg's libx264), else MPEG-4 Part 2 with a warning; the container follows the extension.
+/// Throws io::InputError / std::runtime_error.
+OverlayInfo writeOverlay(const std::string& input, FrameRange range, const Tracks& tracks, const std::vector<int>& labels,
                   const TrackFilterResult& result, const std::filesystem::path& path);
 
 /// Patch overlay: each live patch drawn as its warped square (the tracker's A) and its estimated
@@ -24,7 +32,7 @@ void writeOverlay(const std::string& input, FrameRange range, const Tracks& trac
 /// distance from the centre of projection, projected with that frame's focal length, at most 2.5
 /// patch radii long in the image), green within 5 degrees of the median normal of the frame's
 /// patches, orange beyond.
-void writePatchOverlay(const std::string& input, FrameRange range, const PatchTracks& tracks, const PatchRunResult& result,
+OverlayInfo writePatchOverlay(const std::string& input, FrameRange range, const PatchTracks& tracks, const PatchRunResult& result,
                        const std::filesystem::path& path);
 
 }  // namespace rsfm::vision
