@@ -1,4 +1,5 @@
 // `rsfm evaluate`: an estimate against the truth (docs/evaluate.md).
+#include <cmath>
 #include <fmt/format.h>
 
 #include <memory>
@@ -23,8 +24,14 @@ void addEvaluateCommands(CLI::App& app, std::vector<Command>& commands) {
   ev->add_option("--truth", st->truth, "truth directory (trajectory.tum, summary.json)")->required();
   ev->add_option("--out", st->out, "output directory for evaluation.json and evaluation.md (default: the estimate's)");
   ev->add_option("--rpe-delta", st->o.rpe_delta, "RPE frame distance (frames)")->capture_default_str();
+  ev->add_option("--t-max-diff", st->o.t_max_diff,
+                 "associate a truth pose with the estimate pose nearest in time within this (seconds; frames when "
+                 "neither summary states fps), as evo's --t_max_diff")
+      ->capture_default_str();
   commands.push_back({ev, [st]() -> int {
     if (st->o.rpe_delta < 1) return fail(kBadInput, fmt::format("--rpe-delta must be >= 1, got {}", st->o.rpe_delta));
+    if (!(st->o.t_max_diff >= 0) || !std::isfinite(st->o.t_max_diff))
+      return fail(kBadInput, fmt::format("--t-max-diff must be a finite number >= 0, got {}", st->o.t_max_diff));
     rsfm::report::Evaluation e;
     try {
       e = rsfm::report::evaluateDirectories(st->estimate, st->truth, st->o);

@@ -133,13 +133,13 @@ Tracks tracksOf(const py::object& tracks, const std::optional<std::vector<int>>&
 py::object jsonToPython(const nlohmann::json& j) { return py::module_::import("json").attr("loads")(j.dump()); }
 
 /// TUM rows (t, tx, ty, tz, qx, qy, qz, qw): the camera in the reference frame (docs/outputs.md).
-Eigen::MatrixXd trajectory(const TrackFilterResult& r) {
+Eigen::MatrixXd trajectory(const TrackFilterResult& r, const ImageInfo& image) {
   Eigen::MatrixXd out(static_cast<Eigen::Index>(r.frames.size()), 8);
   for (size_t k = 0; k < r.frames.size(); ++k) {
     Eigen::Vector3d p;
     Eigen::Quaterniond q;
     report::poseOf(r.frames[k], &p, &q);
-    out.row(static_cast<Eigen::Index>(k)) << r.frames[k].frame, p.x(), p.y(), p.z(), q.x(), q.y(), q.z(), q.w();
+    out.row(static_cast<Eigen::Index>(k)) << image.timestamp(r.frames[k].frame), p.x(), p.y(), p.z(), q.x(), q.y(), q.z(), q.w();
   }
   return out;
 }
@@ -152,8 +152,8 @@ py::dict resultDict(const Tracks& tracks, const EstimateResult& r, const cli::Es
   d["summary"] = jsonToPython(summary);
   d["focal_px"] = jsonToPython(summary["focal_px"]);
   d["focal_sd_px"] = summary.contains("focal_sd_px") ? jsonToPython(summary["focal_sd_px"]) : py::none();
-  d["trajectory"] = trajectory(r.main());
-  d["trajectory_online"] = trajectory(r.online);
+  d["trajectory"] = trajectory(r.main(), tracks.image);
+  d["trajectory_online"] = trajectory(r.online, tracks.image);
   d["refined"] = r.refined.ok;
   // Per frame, the online filter: frame, focal (px), its sd, and each plane's unit normal in the
   // reference camera frame (n . Y = d, pointing from the camera to the plane).

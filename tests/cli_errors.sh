@@ -201,9 +201,10 @@ grep -q "trajectory.tum:3: field tz ('zero') is not a number" "$TMP/err.txt" ||
   { fail=$((fail + 1)); echo "FAIL malformed TUM message lacks file:line: $(cat "$TMP/err.txt")"; }
 printf '0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 1.5\n' >"$E/trajectory.tum"
 check "evaluate: non-unit quaternion" 2 "$V" -- evaluate --estimate "$E" --truth "$T" --out "$V"
-printf '0 0 0 0 0 0 0 1\n1 0.1 0 0 0 0 0 1\n7 0 0 0 0 0 0 1\n9 0 0 0 0 0 0 1\n' >"$E/trajectory.tum"
+# Timestamps in seconds (the truth's summary states fps): two poses at the truth's times, two far off.
+{ grep -v '^#' "$T/trajectory.tum" | head -2; printf '100 0 0 0 0 0 0 1\n200 0 0 0 0 0 0 1\n'; } >"$E/trajectory.tum"
 check "evaluate: too few matched poses" 2 "$V" -- evaluate --estimate "$E" --truth "$T" --out "$V"
-grep -q "only 2 poses share a frame number" "$TMP/err.txt" ||
+grep -q "only 2 poses match a timestamp of .* within 0.01 s" "$TMP/err.txt" ||
   { fail=$((fail + 1)); echo "FAIL too-few message: $(cat "$TMP/err.txt")"; }
 cp "$T/trajectory.tum" "$E/"
 check "evaluate: rpe-delta 0" 2 "$V" -- evaluate --estimate "$E" --truth "$T" --out "$V" --rpe-delta 0
@@ -213,7 +214,7 @@ grep -q "summary.json:3: invalid JSON" "$TMP/err.txt" ||
   { fail=$((fail + 1)); echo "FAIL malformed summary message: $(cat "$TMP/err.txt")"; }
 cp "$T/summary.json" "$E/"
 if "$RSFM" evaluate --estimate "$E" --truth "$T" --out "$V" >"$TMP/out.txt" 2>"$TMP/err.txt" &&
-   grep -q "4 matched by frame number" "$TMP/out.txt" && [ -s "$V/evaluation.json" ] && [ -s "$V/evaluation.md" ] &&
+   grep -q "4 matched by timestamp (seconds, within 0.01)" "$TMP/out.txt" && [ -s "$V/evaluation.json" ] && [ -s "$V/evaluation.md" ] &&
    grep -q '"format": "rsfm-evaluation"' "$V/evaluation.json" && ! ls "$V" | grep -q tmp; then
   pass=$((pass + 1)); echo "ok   evaluate good run: $(ls "$V" | tr '\n' ' ')"
 else
@@ -361,9 +362,40 @@ check "i17: version 1e999" 2 "" -- evaluate --estimate "$E17" --truth "$T" --out
 sed 's/"version": 1/"version": 4294967297/' "$T/summary.json" >"$E17/summary.json"
 check "i17: version 2^32+1" 2 "" -- evaluate --estimate "$E17" --truth "$T" --out "$I17/ev"
 cp "$T/summary.json" "$E17/"
-printf '0 0 0 0 0 0 0 1\n1e-10 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n' >"$E17/trajectory.tum"
-check "i17: TUM t = 1e-10 beside frame 0" 2 "" -- evaluate --estimate "$E17" --truth "$T" --out "$I17/ev"
-grep -q "is frame 0 again" "$TMP/err.txt" || { fail=$((fail + 1)); echo "FAIL t=1e-10 message: $(cat "$TMP/err.txt")"; }
+# Two poses for one time are refused; a pose 1e-10 s beside another is a pose of its own, and the
+# truth's pose takes the nearer one only (association as evo's, each estimate pose used once).
+{ cat "$T/trajectory.tum"; grep -v '^#' "$T/trajectory.tum" | head -1; } >"$E17/trajectory.tum"
+check "i17: TUM timestamp twice" 2 "" -- evaluate --estimate "$E17" --truth "$T" --out "$I17/ev"
+grep -q "trajectory.tum:6: timestamp 0 is not greater than the previous one" "$TMP/err.txt" ||
+  { fail=$((fail + 1)); echo "FAIL twice message: $(cat "$TMP/err.txt")"; }
+{ grep '^#' "$T/trajectory.tum"; grep -v '^#' "$T/trajectory.tum" | head -1; printf '1e-10 5 5 5 0 0 0 1\n';
+  grep -v '^#' "$T/trajectory.tum" | tail -n +2; } >"$E17/trajectory.tum"
+if "$RSFM" evaluate --estimate "$E17" --truth "$T" --out "$I17/ev" >"$TMP/out.txt" 2>"$TMP/err.txt" &&
+   grep -q "4 truth, 5 estimate, 4 matched by timestamp" "$TMP/out.txt" && awk '/^ATE \(truth units\)/ {found = 1; ok = ($4 < 1e-9)} END {exit !(found && ok)}' "$TMP/out.txt"; then
+  pass=$((pass + 1)); echo "ok   i17: t = 1e-10 beside 0: a pose of its own, not matched twice, not merged"
+else
+  fail=$((fail + 1)); echo "FAIL t = 1e-10 beside 0: $(cat "$TMP/out.txt" "$TMP/err.txt")"
+fi
+# Association by timestamp (issue 16): shifted 5 ms, matched within the default --t-max-diff 0.01 s,
+# not within 1 ms; frame numbers against a truth in seconds are taken at the truth's frame rate.
+awk '/^#/ {print; next} {$1 = sprintf("%.9f", $1 + 0.005); print}' "$T/trajectory.tum" >"$E17/trajectory.tum"
+if "$RSFM" evaluate --estimate "$E17" --truth "$T" --out "$I17/ev" 2>"$TMP/err.txt" | grep -q "4 matched by timestamp"; then
+  pass=$((pass + 1)); echo "ok   evaluate: 5 ms off, matched within --t-max-diff 0.01"
+else
+  fail=$((fail + 1)); echo "FAIL evaluate 5 ms off: $(cat "$TMP/err.txt")"
+fi
+check "evaluate: 5 ms off, --t-max-diff 0.001" 2 "" -- evaluate --estimate "$E17" --truth "$T" --out "$I17/ev" --t-max-diff 0.001
+grep -q "only 0 poses match a timestamp" "$TMP/err.txt" || { fail=$((fail + 1)); echo "FAIL t-max-diff message: $(cat "$TMP/err.txt")"; }
+check "evaluate: --t-max-diff -1" 2 "" -- evaluate --estimate "$E17" --truth "$T" --out "$I17/ev" --t-max-diff -1
+awk '/^#/ {print; next} {$1 = NR - 2; print}' "$T/trajectory.tum" >"$E17/trajectory.tum"
+grep -v '"fps"\|"timestamps"' "$T/summary.json" >"$E17/summary.json"
+if "$RSFM" evaluate --estimate "$E17" --truth "$T" --out "$I17/ev" >"$TMP/out.txt" 2>"$TMP/err.txt" &&
+   grep -q "4 matched by timestamp" "$TMP/out.txt" && grep -q "taken as seconds at the truth's 30 fps" "$TMP/out.txt"; then
+  pass=$((pass + 1)); echo "ok   evaluate: frame numbers against seconds: taken at the truth's 30 fps"
+else
+  fail=$((fail + 1)); echo "FAIL frame numbers against seconds: $(cat "$TMP/out.txt" "$TMP/err.txt")"
+fi
+cp "$T/summary.json" "$E17/"
 S17="$I17/still"
 mkdir -p "$S17"
 cp "$T/summary.json" "$S17/"

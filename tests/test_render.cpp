@@ -57,8 +57,11 @@ TEST_F(RenderedBox, FilesAndTruth) {
   ASSERT_EQ(poses.size(), 20u);
   EXPECT_EQ(poses[0].p.norm(), 0.0);
   EXPECT_NEAR(poses[0].q.w(), 1.0, 1e-15);
-  EXPECT_EQ(poses[19].t, 19.0);
   const io::Summary s = io::readSummary(dir_ / "truth" / "summary.json");
+  // Timestamps in seconds at the video's frame rate (30 fps by default), stated in the summary.
+  ASSERT_TRUE(s.fps.has_value());
+  EXPECT_EQ(*s.fps, 30.0);
+  EXPECT_DOUBLE_EQ(poses[19].t, 19.0 / 30.0);
   EXPECT_EQ(s.frames, 20);
   EXPECT_EQ(s.width, 320);
   EXPECT_EQ(*s.focal_px, 260.0);

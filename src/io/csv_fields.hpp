@@ -125,14 +125,18 @@ inline void writeCsvHeader(std::ostream& os, const char* magic, const ImageInfo&
   os << "# " << magic << " 1\n";
   os << fmt::format("# image_size {} {}\n", image.width, image.height);
   os << fmt::format("# principal_point {} {}\n", image.cx, image.cy);
+  if (image.fps > 0) os << fmt::format("# fps {}\n", image.fps);
   os << fmt::format("# frames {} {}\n", first_frame, first_frame + frames - 1);
   for (char& c : source)
     if (c == '\n' || c == '\r') c = ' ';
   if (!source.empty()) os << "# source " << source << "\n";
 }
 
+/// The largest frame rate a header may state (frames per second).
+inline constexpr double kMaxFps = 1000.0;
+
 /// The '#' header shared by tracks.csv and patches.csv: "# <magic> 1" first, then image_size,
-/// principal_point, frames, source (other '#' lines are comments or format-specific keys).
+/// principal_point, optional fps, frames, source (other '#' lines are comments or format-specific keys).
 struct CsvHeader {
   std::string magic;  ///< "rsfm-tracks" or "rsfm-patches"
   ImageInfo image;
@@ -176,6 +180,11 @@ struct CsvHeader {
       first_frame = static_cast<int>(v[0]);
       last_frame = v[1];
       frames = true;
+    } else if (key == "fps") {
+      std::array<double, 1> v{};
+      if (!headerNumbers(ss, &v) || !(v[0] > 0) || v[0] > kMaxFps)
+        throw inputError(file, ln, fmt::format("fps needs one number above 0 and at most {} (frames per second)", kMaxFps));
+      image.fps = v[0];
     } else if (key == "source") {
       std::getline(ss >> std::ws, source);
     } else {
@@ -191,7 +200,11 @@ struct CsvHeader {
     if (!version) throw inputError(file, ln, fmt::format("not an rsfm {} file (first line must be '# {} 1')", name(), magic));
     if (!size) throw inputError(file, ln, "missing '# image_size W H' header line");
     if (!frames) throw inputError(file, ln, "missing '# frames FIRST LAST' header line");
-    if (!pp) image = ImageInfo::centred(image.width, image.height);
+    if (!pp) {
+      const double fps = image.fps;
+      image = ImageInfo::centred(image.width, image.height);
+      image.fps = fps;
+    }
   }
 };
 

@@ -120,6 +120,10 @@ Summary readSummaryText(const std::string& text, const std::filesystem::path& fi
     s.scene_size = number(file, j.at("scene_size"), "\"scene_size\"");
     if (!(*s.scene_size > 0)) bad(file, "\"scene_size\" must be positive");
   }
+  if (j.contains("fps") && !j.at("fps").is_null()) {
+    s.fps = number(file, j.at("fps"), "\"fps\"");
+    if (!(*s.fps > 0) || *s.fps > 1000) bad(file, "\"fps\" must be above 0 and at most 1000 (frames per second)");
+  }
   if (j.contains("radial_distortion") && !j.at("radial_distortion").is_null()) {
     const json& d = j.at("radial_distortion");
     if (!d.is_array() || d.size() != 2) bad(file, "\"radial_distortion\" must be [k1, k2]");
@@ -169,6 +173,10 @@ std::string summaryToJson(const Summary& s) {
   if (!s.plane_names.empty()) o["plane_names"] = s.plane_names;
   if (!s.plane_visible_frames.empty()) o["plane_visible_frames"] = s.plane_visible_frames;
   if (s.scene_size) o["scene_size"] = *s.scene_size;
+  if (s.fps) {
+    o["fps"] = *s.fps;
+    o["timestamps"] = "seconds";
+  }
   if (s.distortion) o["radial_distortion"] = {s.distortion->x(), s.distortion->y()};
   if (s.determinable) {
     const Determinable& d = *s.determinable;

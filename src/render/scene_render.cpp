@@ -1221,10 +1221,14 @@ RenderResult writeSequence(const RenderOptions& o, const fs::path& out_dir, cons
                     n, cv::PSNR(first_read, first_rendered), cv::PSNR(ga, gb)));
   }
   std::vector<io::TumPose> poses;
-  for (int k = 0; k < o.frames; ++k) poses.push_back(scene.pose(k));
+  for (int k = 0; k < o.frames; ++k) {
+    poses.push_back(scene.pose(k));
+    poses.back().t = k / o.fps;  // seconds at the video's frame rate, as `rsfm run` writes them
+  }
   std::ostringstream tum;
   io::writeTum(tum, poses);
   io::Summary truth = scene.truth();
+  truth.fps = o.fps;
   const Determinacy det = analyseDeterminacy(scene);
   truth.determinable = det.summary;
   nlohmann::ordered_json rj;

@@ -51,6 +51,9 @@ nlohmann::json summaryHead(const std::string& model, int frames, int first_frame
   j["last_frame"] = last_frame;
   j["image"] = {{"width", image.width}, {"height", image.height}};
   j["principal_point_px"] = {image.cx, image.cy};
+  // Timestamps of trajectory.tum: seconds at the source's frame rate, else frame numbers.
+  j["fps"] = image.fps > 0 ? nlohmann::json(image.fps) : nlohmann::json(nullptr);
+  j["timestamps"] = image.fps > 0 ? "seconds" : "frame";
   j["scale_px"] = scale_px;
   j["focal_px"] = scale_px / beta;
   j["focal_sd_px"] = scale_px * std::sqrt(std::max(0.0, var_beta)) / (beta * beta);
@@ -256,11 +259,11 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
 
 namespace {
 
-std::string tumText(const TrackFilterResult& res) {
+std::string tumText(const TrackFilterResult& res, const ImageInfo& image) {
   std::vector<TumPose> poses;
   for (const auto& f : res.frames) {
     TumPose tp;
-    tp.t = f.frame;
+    tp.t = image.timestamp(f.frame);
     poseOf(f, &tp.p, &tp.q);
     poses.push_back(tp);
   }
@@ -330,8 +333,8 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
   const bool refined = refinedOk(r);
   const TrackFilterResult& online = *r.result;
   const TrackFilterResult& res = refined ? r.refined->state : online;
-  const auto tum_tmp = files->write(dir / "trajectory.tum", tumText(res));
-  if (refined) files->write(dir / "trajectory_online.tum", tumText(online));
+  const auto tum_tmp = files->write(dir / "trajectory.tum", tumText(res, r.tracks->image));
+  if (refined) files->write(dir / "trajectory_online.tum", tumText(online, r.tracks->image));
   files->write(dir / "poses.csv", posesCsv(res, refined ? &r.refined->cov_motion : nullptr));
   // planes.csv: the filter's frame by frame, then the refinement's final estimate.
   std::string pc =

@@ -17,20 +17,40 @@ using namespace rsfm::io;  // the file formats the reports write
 namespace fs = std::filesystem;
 namespace {
 
-std::map<long long, TumPose> byFrame(const fs::path& file, const std::vector<TumPose>& poses) {
-  std::map<long long, TumPose> m;
-  for (const TumPose& p : poses) {
-    // Frame numbers are exact integers in rsfm's TUM files ("12", or "12.000000" from other
-    // tools); two timestamps may not name one frame (issue 17: t = 1e-10 merged with frame 0).
-    const double r = std::round(p.t);
-    if (std::abs(p.t - r) > 1e-6 || r < 0 || r > std::numeric_limits<int>::max())
-      throw InputError(fmt::format("{}: timestamp {} is not a frame number from 0 to 2^31 - 1 (rsfm TUM files use integer "
-                                   "frame indices)", printable(file.string(), 300), p.t));
-    if (!m.emplace(static_cast<long long>(r), p).second)
-      throw InputError(fmt::format("{}: timestamp {} is frame {} again (an earlier line has that frame number)",
-                                   printable(file.string(), 300), p.t, static_cast<long long>(r)));
+/// The poses sorted by timestamp, each timestamp scaled by `scale` (a frame number -> seconds:
+/// 1 / fps). Two poses with one timestamp are refused (issue 17: which would be matched?).
+std::vector<TumPose> byTime(const fs::path& file, std::vector<TumPose> poses, double scale) {
+  for (TumPose& p : poses) {
+    if (!std::isfinite(p.t) || p.t < 0 || p.t > 1e12)
+      throw InputError(fmt::format("{}: timestamp {} is not a time from 0 to 1e12", printable(file.string(), 300), p.t));
+    p.t *= scale;
   }
-  return m;
+  std::stable_sort(poses.begin(), poses.end(), [](const TumPose& a, const TumPose& b) { return a.t < b.t; });
+  for (size_t i = 1; i < poses.size(); ++i)
+    if (poses[i].t == poses[i - 1].t)
+      throw InputError(fmt::format("{}: timestamp {} appears twice (two poses for one time)", printable(file.string(), 300),
+                                   poses[i].t / scale));
+  return poses;
+}
+
+/// Association by timestamp as evo does (evo.core.sync.associate_trajectories): each truth pose
+/// takes the estimate pose nearest in time when it is within `max_diff`, each estimate pose used
+/// once. Returns (truth index, estimate index) pairs in time order.
+std::vector<std::pair<size_t, size_t>> associate(const std::vector<TumPose>& truth, const std::vector<TumPose>& est,
+                                                 double max_diff) {
+  std::vector<std::pair<size_t, size_t>> out;
+  std::vector<char> used(est.size(), 0);
+  size_t j = 0;
+  for (size_t i = 0; i < truth.size(); ++i) {
+    const double t = truth[i].t;
+    while (j + 1 < est.size() && est[j + 1].t <= t) ++j;
+    size_t best = j;
+    if (j + 1 < est.size() && std::abs(est[j + 1].t - t) < std::abs(est[j].t - t)) best = j + 1;
+    if (est.empty() || std::abs(est[best].t - t) > max_diff || used[best]) continue;
+    used[best] = 1;
+    out.emplace_back(i, best);
+  }
+  return out;
 }
 
 eval::Pose toPose(const TumPose& p) { return {p.p, p.q.normalized().toRotationMatrix()}; }
@@ -68,23 +88,49 @@ Evaluation evaluateDirectories(const fs::path& estimate_dir, const fs::path& tru
   const auto truth_poses = readTum(tt);
   const Summary est_sum = readSummary(es);
   const Summary truth_sum = readSummary(ts);
-  const auto em = byFrame(et, est_poses), tm = byFrame(tt, truth_poses);
+  // Timestamps: seconds when the summary states a frame rate (fps), else frame numbers. When only
+  // one side is in seconds, the other's frame numbers become seconds at that side's rate.
+  if (!(opt.t_max_diff >= 0) || !std::isfinite(opt.t_max_diff))
+    throw InputError(fmt::format("t_max_diff must be a finite number >= 0, got {}", opt.t_max_diff));
+  double est_scale = 1.0, truth_scale = 1.0;
+  std::optional<double> fps = truth_sum.fps ? truth_sum.fps : est_sum.fps;
+  if (est_sum.fps && !truth_sum.fps) {
+    truth_scale = 1.0 / *est_sum.fps;
+    e.notes.push_back(fmt::format("the truth's timestamps are frame numbers: taken as seconds at the estimate's {} fps",
+                                  *est_sum.fps));
+  } else if (truth_sum.fps && !est_sum.fps) {
+    est_scale = 1.0 / *truth_sum.fps;
+    e.notes.push_back(fmt::format("the estimate's timestamps are frame numbers: taken as seconds at the truth's {} fps",
+                                  *truth_sum.fps));
+  } else if (est_sum.fps && truth_sum.fps && std::abs(*est_sum.fps - *truth_sum.fps) > 1e-9 * *truth_sum.fps) {
+    e.notes.push_back(fmt::format("frame rates differ: estimate {} fps, truth {} fps (associated by time)", *est_sum.fps,
+                                  *truth_sum.fps));
+  }
+  e.timestamps = fps ? "seconds" : "frame";
+  e.t_max_diff = opt.t_max_diff;
+  const std::vector<TumPose> em = byTime(et, est_poses, est_scale), tm = byTime(tt, truth_poses, truth_scale);
   e.estimate_poses = static_cast<int>(em.size());
   e.truth_poses = static_cast<int>(tm.size());
 
   std::vector<eval::Pose> E, T;
-  std::vector<long long> frames;
-  for (const auto& [k, p] : tm) {
-    auto it = em.find(k);
-    if (it == em.end()) continue;
-    T.push_back(toPose(p));
-    E.push_back(toPose(it->second));
-    frames.push_back(k);
+  std::vector<long long> frames;  // the truth's frame numbers (the RPE's frame distance)
+  const auto pairs = associate(tm, em, opt.t_max_diff);
+  bool integral = true;
+  for (const auto& [i, j] : pairs) integral = integral && std::abs(tm[i].t - std::round(tm[i].t)) < 1e-6;
+  for (size_t n = 0; n < pairs.size(); ++n) {
+    const auto [i, j] = pairs[n];
+    T.push_back(toPose(tm[i]));
+    E.push_back(toPose(em[j]));
+    frames.push_back(fps ? std::llround(tm[i].t * *fps) : integral ? std::llround(tm[i].t) : static_cast<long long>(n));
   }
+  if (!fps && !integral)
+    e.notes.push_back("timestamps are neither seconds at a known frame rate nor frame numbers: the RPE's frame distance "
+                      "counts matched poses");
   e.matched = static_cast<int>(frames.size());
   if (e.matched < 3)
-    throw InputError(fmt::format("{}: only {} pose{} share a frame number with {} (need at least 3)", et.string(),
-                                 e.matched, e.matched == 1 ? "" : "s", tt.string()));
+    throw InputError(fmt::format("{}: only {} pose{} match a timestamp of {} within {} {} (need at least 3; --t-max-diff)",
+                                 et.string(), e.matched, e.matched == 1 ? "" : "s", tt.string(), opt.t_max_diff,
+                                 fps ? "s" : "frames"));
   // A Sim(3) alignment needs the camera centres of both trajectories to spread: name the file
   // whose centres do not (issue 17: a still truth was blamed on the estimate).
   for (const auto& [traj, file] : {std::pair{&E, &et}, std::pair{&T, &tt}}) {
@@ -158,7 +204,8 @@ std::string evaluationJson(const Evaluation& e) {
   o["version"] = 1;
   o["estimate"] = e.estimate_dir.string();
   o["truth"] = e.truth_dir.string();
-  o["poses"] = {{"truth", e.truth_poses}, {"estimate", e.estimate_poses}, {"matched", e.matched}};
+  o["poses"] = {{"truth", e.truth_poses}, {"estimate", e.estimate_poses}, {"matched", e.matched},
+                {"timestamps", e.timestamps}, {"t_max_diff", e.t_max_diff}};
   const auto& T = e.ate.alignment.T;
   J R = J::array();
   for (int r = 0; r < 3; ++r) R.push_back({T.R(r, 0), T.R(r, 1), T.R(r, 2)});
@@ -199,8 +246,8 @@ std::string evaluationJson(const Evaluation& e) {
 std::string evaluationTable(const Evaluation& e) {
   std::string s;
   s += fmt::format("rsfm evaluate: {} vs truth {}\n", e.estimate_dir.string(), e.truth_dir.string());
-  s += fmt::format("poses: {} truth, {} estimate, {} matched by frame number\n", e.truth_poses, e.estimate_poses,
-                   e.matched);
+  s += fmt::format("poses: {} truth, {} estimate, {} matched by timestamp ({}, within {})\n", e.truth_poses,
+                   e.estimate_poses, e.matched, e.timestamps, e.t_max_diff);
   const auto& T = e.ate.alignment.T;
   s += fmt::format("alignment (Sim(3), estimate -> truth): scale {}, rotation {} deg, translation ({}, {}, {})\n",
                    num(T.s), num(e.alignment_rotation_deg, 4), num(T.t.x(), 4), num(T.t.y(), 4), num(T.t.z(), 4));
@@ -241,7 +288,7 @@ std::string evaluationTable(const Evaluation& e) {
 
 std::string evaluationMarkdown(const Evaluation& e, const std::string& invocation) {
   std::string s = "# rsfm evaluation\n\n";
-  s += "Metrics are defined in docs/evaluate.md. Poses are associated by frame number; the estimate is\n"
+  s += "Metrics are defined in docs/evaluate.md. Poses are associated by timestamp (nearest within t_max_diff, as evo); the estimate is\n"
        "aligned to the truth by a Umeyama Sim(3) fit of the camera centres.\n\n```\n";
   s += evaluationTable(e);
   s += "```\n\nCommand: `" + invocation + "`\n";

@@ -122,7 +122,7 @@ nlohmann::json writePatchReport(const PatchReport& r, const std::filesystem::pat
   std::vector<TumPose> poses;
   for (const auto& f : res.frames) {
     TumPose tp;
-    tp.t = f.frame;
+    tp.t = r.tracks->image.timestamp(f.frame);
     const Eigen::Matrix3d Rc = f.R.transpose();
     tp.p = -Rc * f.T;
     tp.q = canonical(Eigen::Quaterniond(Rc));

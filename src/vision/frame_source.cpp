@@ -92,7 +92,10 @@ FrameSource::FrameSource(const std::string& input) : input_(input) {
   const double n = cap_->get(cv::CAP_PROP_FRAME_COUNT);
   count_ = n > 0 ? static_cast<int>(n) : -1;
   const double fps = cap_->get(cv::CAP_PROP_FPS);
-  if (fps > 0 && fps < 1000) fps_ = fps;
+  if (fps > 0 && fps <= 1000) {
+    fps_ = fps;
+    fps_known_ = true;
+  }
 }
 
 FrameSource::~FrameSource() = default;
@@ -139,7 +142,7 @@ cv::Mat toGray8(const cv::Mat& frame) {
   return gray;
 }
 
-void forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,
+double forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,
                   const std::function<void(int, int)>& progress, const MinFrameSize& min_size) {
   FrameSource src(input);
   cv::Mat img;
@@ -167,6 +170,7 @@ void forEachFrame(const std::string& input, FrameRange range, const std::functio
   if (range.last >= 0 && src.index() < range.last && used < range.last - range.first + 1)
     throw io::InputError(fmt::format("{}: the frame range ends at {} but the input has only {} frames", input, range.last,
                                      src.index() + 1));
+  return src.fpsKnown() ? src.fps() : 0.0;
 }
 
 }  // namespace rsfm::vision

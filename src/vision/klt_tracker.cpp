@@ -226,12 +226,13 @@ Tracks trackInput(const std::string& input, const TrackerOptions& options, Frame
   // The smallest frame the tracker works in: a window and the anchoring template inside the
   // border on both sides.
   const int need = 2 * (options.border_px + std::max(options.window_px, 2 * options.affine.radius + 1));
-  forEachFrame(
+  const double fps = forEachFrame(
       input, range, [&](const cv::Mat& img) { tracker.process(img); }, progress,
       {need, fmt::format("tracking with a {} px window, {} px template radius and {} px border needs", options.window_px,
                          options.affine.radius, options.border_px)});
   Tracks t = tracker.tracks(range.first);
   t.source = input;
+  t.image.fps = fps;
   return t;
 }
 

@@ -46,6 +46,9 @@ struct Summary {
   std::vector<double> plane_reprojection_rms_px;///< estimates (may be empty)
   std::vector<std::string> plane_names;         ///< truth (may be empty)
   std::optional<double> scene_size;             ///< truth: scene size in trajectory units
+  /// The frame rate the trajectory's timestamps are in (seconds = frame / fps); unset: the
+  /// timestamps are frame numbers (docs/outputs.md, docs/evaluate.md).
+  std::optional<double> fps;
   std::vector<int> plane_visible_frames;        ///< truth: frames in which each plane is visible (may be empty)
   std::optional<Eigen::Vector2d> distortion;    ///< radial (k1, k2), OpenCV's convention
   std::optional<Determinable> determinable;     ///< truth: what the sequence determines

@@ -14,6 +14,10 @@ namespace rsfm::report {
 
 struct EvaluateOptions {
   long long rpe_delta = 1;  ///< RPE frame distance (frames, >= 1)
+  /// Association (as evo's --t_max_diff): a truth pose and the estimate pose nearest in time are
+  /// one pair when their timestamps differ by at most this (seconds, or frames when neither
+  /// summary states a frame rate).
+  double t_max_diff = 0.01;
 };
 
 struct PlaneEvaluation {
@@ -33,6 +37,8 @@ struct Evaluation {
   double scale_ref = 0;                ///< scene_size or trajectory extent (truth units)
   eval::RpeResult rpe;
   long long rpe_delta = 1;
+  std::string timestamps = "frame";  ///< "seconds" (a summary states fps) or "frame"
+  double t_max_diff = 0.01;
   double alignment_rotation_deg = 0;
   std::optional<double> focal_truth, focal_est, focal_err_pct;
   std::vector<PlaneEvaluation> planes;   ///< one per truth plane
@@ -41,7 +47,7 @@ struct Evaluation {
 };
 
 /// Reads both directories and computes every metric. Throws InputError on unreadable or invalid
-/// files and when fewer than 3 poses share a frame number.
+/// files and when fewer than 3 poses are associated by timestamp.
 Evaluation evaluateDirectories(const std::filesystem::path& estimate_dir, const std::filesystem::path& truth_dir,
                                const EvaluateOptions& opt);
 

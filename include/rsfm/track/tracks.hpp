@@ -9,14 +9,20 @@
 
 namespace rsfm {
 
-/// Image size and principal point (pixels).
+/// Image size and principal point (pixels), and the source's frame rate.
 struct ImageInfo {
   int width = 0;
   int height = 0;
   double cx = 0.0;  ///< principal point x (default: (width - 1) / 2)
   double cy = 0.0;  ///< principal point y (default: (height - 1) / 2)
+  /// Frames per second of the source (a video's rate; tracks.csv's '# fps'); 0 when unknown (an
+  /// image sequence, a tracks file without the key). Timestamps: docs/outputs.md.
+  double fps = 0.0;
   /// A width x height image with the default principal point, the image centre.
   static ImageInfo centred(int width, int height) { return {width, height, (width - 1) / 2.0, (height - 1) / 2.0}; }
+  /// The timestamp of frame `frame` (frame numbers of the input, the first frame 0): seconds,
+  /// frame / fps, when the frame rate is known, else the frame number itself.
+  double timestamp(int frame) const { return fps > 0 ? frame / fps : static_cast<double>(frame); }
 };
 
 /// One tracked feature in one frame.

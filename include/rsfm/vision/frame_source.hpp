@@ -33,7 +33,10 @@ class FrameSource {
   int index() const { return index_; }
   /// Number of frames if known (video container's count or number of images), else -1.
   int countHint() const { return count_; }
+  /// Frames per second: the video's when its container states one, else 30 (for writing videos).
   double fps() const { return fps_; }
+  /// Whether fps() is the source's own rate (a video that states it), not the default.
+  bool fpsKnown() const { return fps_known_; }
   const std::string& description() const { return input_; }
 
  private:
@@ -44,6 +47,7 @@ class FrameSource {
   int index_ = -1;
   int count_ = -1;
   double fps_ = 30.0;
+  bool fps_known_ = false;
   cv::Size size_;
 };
 
@@ -61,7 +65,8 @@ struct MinFrameSize {
 /// Calls `fn` on every frame of `input` in `range`, in order; `progress(done, total)` after each
 /// (total = -1 when unknown). Throws io::InputError on bad input, frames smaller than `min_size`,
 /// a range that starts after the end or ends after it, or fewer than 2 frames.
-void forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,
+/// Returns the source's frame rate when it states one (FrameSource::fpsKnown), else 0.
+double forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,
                   const std::function<void(int, int)>& progress = {}, const MinFrameSize& min_size = {});
 
 }  // namespace rsfm::vision
