@@ -101,7 +101,7 @@ cli::EstimateCli estimateOptions(const py::kwargs& kw, CLI::App* app) {
 /// (M, 4) rows frame, track, x, y -> Tracks, through the tracks.csv reader (docs/tracks.md), so
 /// an array is checked as a file is (one id per frame, ranges, ...).
 Tracks tracksFromArray(const Eigen::MatrixXd& a, const std::vector<int>& image_size,
-                       const std::optional<std::vector<double>>& principal_point) {
+                       const std::optional<std::vector<double>>& principal_point, std::optional<double> fps) {
   if (a.cols() != 4) inputError(fmt::format("tracks array: {} columns, expected 4 (frame, track, x, y)", a.cols()));
   if (a.rows() == 0) inputError("tracks array: no rows");
   if (image_size.size() != 2) inputError("image_size must be (width, height)");
@@ -111,23 +111,35 @@ Tracks tracksFromArray(const Eigen::MatrixXd& a, const std::vector<int>& image_s
   const double w = image_size[0], h = image_size[1];
   const double cx = principal_point ? (*principal_point)[0] : (w - 1) / 2, cy = principal_point ? (*principal_point)[1] : (h - 1) / 2;
   if (principal_point && principal_point->size() != 2) inputError("principal_point must be (x, y)");
-  std::string csv = fmt::format("# rsfm-tracks 1\n# image_size {} {}\n# principal_point {:.17g} {:.17g}\n# frames {:.17g} {:.17g}\n"
+  std::string csv = fmt::format("# rsfm-tracks 1\n# image_size {} {}\n# principal_point {:.17g} {:.17g}\n{}# frames {:.17g} {:.17g}\n"
                                 "# source numpy array\nframe,track,x,y\n",
-                                image_size[0], image_size[1], cx, cy, a(order.front(), 0), a(order.back(), 0));
+                                image_size[0], image_size[1], cx, cy, fps ? fmt::format("# fps {:.17g}\n", *fps) : "",
+                                a(order.front(), 0), a(order.back(), 0));
   for (Eigen::Index i : order) csv += fmt::format("{:.17g},{:.17g},{:.17g},{:.17g}\n", a(i, 0), a(i, 1), a(i, 2), a(i, 3));
   std::istringstream in(csv);
   return io::readTracks(in, "tracks array (sorted by frame; line = row + 7)");
 }
 
 Tracks tracksOf(const py::object& tracks, const std::optional<std::vector<int>>& image_size,
-                const std::optional<std::vector<double>>& principal_point) {
+                const std::optional<std::vector<double>>& principal_point, std::optional<double> fps) {
   if (py::isinstance<py::str>(tracks) || py::hasattr(tracks, "__fspath__")) {
-    if (image_size || principal_point)
-      inputError("image_size and principal_point are for an array of tracks: a tracks file states them");
+    if (image_size || principal_point || fps)
+      inputError("image_size, principal_point and fps are for an array of tracks: a tracks file states them");
     return io::readTracks(std::string(py::str(py::module_::import("os").attr("fspath")(tracks))));
   }
   if (!image_size) inputError("an array of tracks needs image_size=(width, height)");
-  return tracksFromArray(tracks.cast<Eigen::MatrixXd>(), *image_size, principal_point);
+  return tracksFromArray(tracks.cast<Eigen::MatrixXd>(), *image_size, principal_point, fps);
+}
+
+/// Tracks as rows (frame, track, x, y): what estimate() takes.
+Eigen::MatrixXd trackRows(const Tracks& t) {
+  long rows = 0;
+  for (const auto& f : t.frames) rows += static_cast<long>(f.size());
+  Eigen::MatrixXd a(rows, 4);
+  long i = 0;
+  for (int k = 0; k < t.numFrames(); ++k)
+    for (const auto& p : t.frames[static_cast<size_t>(k)]) a.row(i++) << t.first_frame + k, p.id, p.px.x(), p.px.y();
+  return a;
 }
 
 py::object jsonToPython(const nlohmann::json& j) { return py::module_::import("json").attr("loads")(j.dump()); }
@@ -152,6 +164,25 @@ py::dict resultDict(const Tracks& tracks, const EstimateResult& r, const cli::Es
   d["summary"] = jsonToPython(summary);
   d["focal_px"] = jsonToPython(summary["focal_px"]);
   d["focal_sd_px"] = summary.contains("focal_sd_px") ? jsonToPython(summary["focal_sd_px"]) : py::none();
+  // The final planes (the main result's): unit normals (m, 3) in the reference camera frame,
+  // their sds (deg; NaN where a plane is not determined), distances and their sds.
+  {
+    const auto& pl = summary["planes"];
+    Eigen::MatrixXd normals(static_cast<Eigen::Index>(pl.size()), 3);
+    for (size_t j = 0; j < pl.size(); ++j)
+      for (int c = 0; c < 3; ++c) normals(static_cast<Eigen::Index>(j), c) = pl[j][static_cast<size_t>(c)].get<double>();
+    d["planes"] = normals;
+    auto column = [&](const char* key) {
+      Eigen::VectorXd v = Eigen::VectorXd::Constant(static_cast<Eigen::Index>(pl.size()), NAN);
+      if (summary.contains(key) && summary[key].is_array())
+        for (size_t j = 0; j < pl.size() && j < summary[key].size(); ++j)
+          if (summary[key][j].is_number()) v[static_cast<Eigen::Index>(j)] = summary[key][j].get<double>();
+      return v;
+    };
+    d["plane_normal_sd_deg"] = column("plane_normal_sd_deg");
+    d["plane_distances"] = column("plane_distances");
+    d["plane_distance_sd"] = column("plane_distance_sd");
+  }
   d["trajectory"] = trajectory(r.main(), tracks.image);
   d["trajectory_online"] = trajectory(r.online, tracks.image);
   d["refined"] = r.refined.ok;
@@ -191,10 +222,11 @@ std::function<void(const std::string&)> noteTo(bool quiet) {
 }
 
 py::dict estimatePy(const py::object& tracks, const std::optional<std::vector<int>>& image_size,
-                    const std::optional<std::vector<double>>& principal_point, const py::kwargs& kw) {
+                    const std::optional<std::vector<double>>& principal_point, std::optional<double> fps,
+                    const py::kwargs& kw) {
   CLI::App app{"rsfm.estimate"};
   const cli::EstimateCli e = estimateOptions(kw, &app);
-  const Tracks t = tracksOf(tracks, image_size, principal_point);
+  const Tracks t = tracksOf(tracks, image_size, principal_point, fps);
   EstimateResult r;
   {
     py::gil_scoped_release release;
@@ -219,14 +251,7 @@ py::dict runPy(const std::string& video, const py::kwargs& kw) {
     r = estimate(t, e.est, noteTo(e.quiet), e.quiet ? std::function<void(int, int)>{} : cli::progressReporter("estimate", "frames"));
   }
   py::dict d = resultDict(t, r, e);
-  // The tracks, as rows (frame, track, x, y): what estimate() takes.
-  long rows = 0;
-  for (const auto& f : t.frames) rows += static_cast<long>(f.size());
-  Eigen::MatrixXd a(rows, 4);
-  long i = 0;
-  for (int k = 0; k < t.numFrames(); ++k)
-    for (const auto& p : t.frames[static_cast<size_t>(k)]) a.row(i++) << t.first_frame + k, p.id, p.px.x(), p.px.y();
-  d["tracks"] = a;
+  d["tracks"] = trackRows(t);
   d["image_size"] = py::make_tuple(t.image.width, t.image.height);
   return d;
 }
@@ -370,18 +395,22 @@ PYBIND11_MODULE(_rsfm, m) {
   });
 
   m.def("estimate", &estimatePy, py::arg("tracks"), py::kw_only(), py::arg("image_size") = py::none(),
-        py::arg("principal_point") = py::none(),
+        py::arg("principal_point") = py::none(), py::arg("fps") = py::none(),
         R"doc(The pipeline of `rsfm estimate` (plane finding, the homography start, the filter, the final
 refinement) on tracks.
 
 tracks: a tracks.csv path (docs/tracks.md), or an (M, 4) array of rows (frame, track, x, y) in
-    pixels, with image_size=(width, height) (and principal_point=(x, y), default the image centre).
+    pixels, with image_size=(width, height) (and principal_point=(x, y), default the image centre;
+    fps, the source's frame rate, makes the trajectories' timestamps seconds).
 **options: the command line's options, dashes as underscores (model="plane", focal_px=612,
     refine="none", quiet=True, ...; rsfm.options("estimate") lists them with their defaults).
 
 Returns a dict: "summary" (what summary.json holds), "focal_px" (None when the data do not
-determine it) and "focal_sd_px", "trajectory" (F, 8) TUM rows (t, tx, ty, tz, qx, qy, qz, qw) of
-the main result (the refinement's when it ran), "trajectory_online" (the filter's), "refined",
+determine it) and "focal_sd_px", "planes" (m, 3) unit normals in the reference camera frame with
+"plane_normal_sd_deg", "plane_distances", "plane_distance_sd" (NaN where not determined),
+"trajectory" (F, 8) TUM rows (t, tx, ty, tz, qx, qy, qz, qw) of
+the main result (the refinement's when it ran; t in seconds at the source's frame rate when known,
+else frame numbers), "trajectory_online" (the filter's), "refined",
 "online" (per frame: "frame", "focal_px", "focal_sd_px", "normals" (F, m, 3) unit normals in the
 reference camera frame), "labels" (per track id: plane, -1 outlier, -2 unused).
 Raises rsfm.InputError for bad input or options, RuntimeError when the filter stops.)doc");
@@ -397,16 +426,12 @@ Returns estimate()'s dict plus "tracks" ((M, 4) rows frame, track, x, y) and "im
       "read_tracks",
       [](const std::string& path) {
         const Tracks t = io::readTracks(path);
-        long rows = 0;
-        for (const auto& f : t.frames) rows += static_cast<long>(f.size());
-        Eigen::MatrixXd a(rows, 4);
-        long i = 0;
-        for (int k = 0; k < t.numFrames(); ++k)
-          for (const auto& p : t.frames[static_cast<size_t>(k)]) a.row(i++) << t.first_frame + k, p.id, p.px.x(), p.px.y();
-        return py::make_tuple(a, py::make_tuple(t.image.width, t.image.height), py::make_tuple(t.image.cx, t.image.cy));
+        return py::make_tuple(trackRows(t), py::make_tuple(t.image.width, t.image.height),
+                              py::make_tuple(t.image.cx, t.image.cy), t.image.fps > 0 ? py::cast(t.image.fps) : py::none());
       },
       py::arg("path"),
-      "Reads a tracks.csv (docs/tracks.md): returns (rows (M, 4) frame, track, x, y; (width, height); (c_x, c_y)).");
+      "Reads a tracks.csv (docs/tracks.md): returns (rows (M, 4) frame, track, x, y; (width, height); (c_x, c_y); "
+      "fps or None).");
 
   py::class_<PlaneFilterPy>(m, "PlaneFilter", R"doc(The plane filter (Alon & Sclaroff's model, docs/filter.md), one frame at a time.
 

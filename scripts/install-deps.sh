@@ -5,7 +5,7 @@
 set -euo pipefail
 PKGS=(build-essential cmake pkg-config
       libeigen3-dev libopencv-dev libceres-dev libcli11-dev nlohmann-json3-dev
-      libfmt-dev libgtest-dev libbenchmark-dev
+      libfmt-dev libgtest-dev libbenchmark-dev libboost-dev
       python3-numpy python3-matplotlib python3-dev pybind11-dev python3-pytest ffmpeg
       opencv-doc visp-images-data)
 missing=()

@@ -69,6 +69,8 @@ def test_estimate_recovers_the_scene(scene):
     assert angle == pytest.approx(90.0, abs=2.0)
     # Each true face normal has an estimated plane within 3 degrees.
     est = [np.array(p) for p in planes]
+    assert np.allclose(r["planes"], np.array(planes))
+    assert np.all(np.isfinite(r["plane_normal_sd_deg"])) and np.all(r["plane_normal_sd_deg"] < 5)
     for n in (n1, n2):
         assert min(angle_deg(n, e) for e in est) < 3.0
     assert r["trajectory"].shape == (60, 8)
@@ -95,9 +97,15 @@ def test_estimate_gives_the_cli_numbers(tracks_file, tmp_path):
     labels = np.loadtxt(out / "labels.csv", delimiter=",", skiprows=1, dtype=int)
     assert np.array_equal(r["labels"][labels[:, 0]], labels[:, 1])
     # Same run from the array of the same rows: the same numbers.
-    rows, size, pp = rsfm.read_tracks(str(tracks_file))
+    rows, size, pp, fps = rsfm.read_tracks(str(tracks_file))
+    assert fps is None and r["summary"]["timestamps"] == "frame"
     r2 = rsfm.estimate(rows, image_size=size, principal_point=pp, model="planes", quiet=True)
     assert r2["focal_px"] == pytest.approx(r["focal_px"], rel=1e-12)
+    # With a frame rate the timestamps are seconds; nothing else changes.
+    r3 = rsfm.estimate(rows, image_size=size, principal_point=pp, fps=25.0, model="planes", quiet=True)
+    assert r3["summary"]["timestamps"] == "seconds" and r3["summary"]["fps"] == 25.0
+    assert np.allclose(r3["trajectory"][:, 0], r["trajectory"][:, 0] / 25.0)
+    assert np.array_equal(r3["trajectory"][:, 1:], r["trajectory"][:, 1:])
 
 
 def test_options_take_effect(scene):
@@ -177,4 +185,8 @@ def test_run_tracks_a_video(tmp_path):
     assert r["image_size"] == (640, 480)
     assert r["tracks"].shape[1] == 4 and len(r["tracks"]) > 1000
     assert r["trajectory"].shape[0] == 60
+    # Timestamps in seconds at the video's frame rate (box.mp4: ~29.97 fps), frames 1..60.
+    assert r["summary"]["timestamps"] == "seconds"
+    fps = r["summary"]["fps"]
+    assert 29 < fps < 31 and r["trajectory"][0, 0] == pytest.approx(1 / fps)
     assert r["focal_px"] is None or 300 < r["focal_px"] < 2000

@@ -1,5 +1,6 @@
 #include "rsfm/eval/trajectory_metrics.hpp"
 
+#include <Eigen/Geometry>
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
@@ -33,13 +34,18 @@ UmeyamaResult umeyama(const std::vector<Eigen::Vector3d>& src, const std::vector
   var_s /= static_cast<double>(n);
   C /= static_cast<double>(n);
   if (!(var_s > 0)) return res;
-  Eigen::JacobiSVD<Eigen::Matrix3d> svd(C, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  Eigen::Vector3d S = Eigen::Vector3d::Ones();
-  if (svd.matrixU().determinant() * svd.matrixV().determinant() < 0) S(2) = -1;
-  res.T.R = svd.matrixU() * S.asDiagonal() * svd.matrixV().transpose();
-  res.T.s = with_scale ? svd.singularValues().dot(S) / var_s : 1.0;
-  res.T.t = md - res.T.s * res.T.R * ms;
-  res.singular_values = svd.singularValues();
+  // The transform is Eigen's Umeyama (reflection-corrected, Umeyama 1991 [Ume91]); the singular
+  // values of the cross-covariance C tell the caller whether the rotation is determined.
+  Eigen::Matrix3Xd S(3, static_cast<Eigen::Index>(n)), D(3, static_cast<Eigen::Index>(n));
+  for (std::size_t i = 0; i < n; ++i) {
+    S.col(static_cast<Eigen::Index>(i)) = src[i];
+    D.col(static_cast<Eigen::Index>(i)) = dst[i];
+  }
+  const Eigen::Matrix4d T = Eigen::umeyama(S, D, with_scale);
+  res.T.s = with_scale ? T.block<3, 1>(0, 0).norm() : 1.0;
+  res.T.R = T.block<3, 3>(0, 0) / res.T.s;
+  res.T.t = T.block<3, 1>(0, 3);
+  res.singular_values = Eigen::JacobiSVD<Eigen::Matrix3d>(C).singularValues();
   res.ok = std::isfinite(res.T.s) && res.T.s > 0;
   return res;
 }
