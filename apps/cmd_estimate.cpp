@@ -324,6 +324,14 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
                                 {"manual", !e.est.finder.rois.empty()}};
 }
 
+PatchRunReport::PatchRunReport(const PatchTracks& tracks, const PatchEstimateResult& pr) {
+  rep.tracks = &tracks;
+  rep.result = &pr.run;
+  rep.motion = &pr.motion;
+  rep.command = invocation();
+  if (pr.start.ok) rep.extra["start"] = startJson(pr.start);
+}
+
 /// The pipeline (pipeline/estimate.hpp) + report (+ overlay when `overlay_input` is set). Returns the exit code.
 int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOverlay& overlay, double t_start,
                       bool write_tracks) {
@@ -394,7 +402,6 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
 /// The patch pipeline (pipeline/estimate.hpp) + report (+ overlay when `overlay_input` is set).
 int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, const PatchOverlay& overlay,
                            double t_start, bool write_patches) {
-  nlohmann::json start_json;
   PatchEstimateResult pr;
   std::vector<std::string> warnings;
   try {
@@ -406,14 +413,9 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
     return fail(kRuntimeFailure, ex.what());
   }
   const PatchRunResult& res = pr.run;
-  if (pr.start.ok) start_json = startJson(pr.start);
   if (!res.ok()) return fail(kRuntimeFailure, "the patch filter stopped at " + res.stopped + " (no outputs written)");
-  report::PatchReport rep;
-  rep.tracks = &tracks;
-  rep.result = &res;
-  rep.motion = &pr.motion;
-  rep.command = invocation();
-  if (!start_json.is_null()) rep.extra["start"] = start_json;
+  PatchRunReport run(tracks, pr);
+  report::PatchReport& rep = run.rep;
   nlohmann::json summary;
   if (int rc = guarded([&] {
         io::AtomicFileSet files;

@@ -13,6 +13,7 @@
 #include "rsfm/pipeline/estimate.hpp"
 #include "rsfm/pipeline/patch_pipeline.hpp"
 #include "rsfm/report/estimate_report.hpp"
+#include "rsfm/report/patch_report.hpp"
 #include "rsfm/vision/overlay.hpp"
 
 namespace rsfm::cli {
@@ -52,6 +53,14 @@ struct EstimateRunReport {
   EstimateRunReport& operator=(const EstimateRunReport&) = delete;
   report::EstimateReport rep;
   std::optional<report::GivenCamera> given;
+};
+
+/// The same for a patch run (estimatePatches): the result, the motion check, "start".
+struct PatchRunReport {
+  PatchRunReport(const PatchTracks& tracks, const PatchEstimateResult& pr);
+  PatchRunReport(const PatchRunReport&) = delete;
+  PatchRunReport& operator=(const PatchRunReport&) = delete;
+  report::PatchReport rep;
 };
 
 /// Writes the overlay video of a result to a temporary file (committed with the other outputs);

@@ -26,9 +26,12 @@
 #include "estimate_cli.hpp"
 #include "rsfm/filters/recursive_filter.hpp"
 #include "rsfm/io/input_error.hpp"
+#include "rsfm/io/patches_io.hpp"
 #include "rsfm/io/tracks_io.hpp"
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/report/estimate_report.hpp"
+#include "rsfm/report/patch_report.hpp"
+#include "rsfm/vision/patch_tracker.hpp"
 #include "rsfm/version.hpp"
 #include "rsfm/vision/klt_tracker.hpp"
 #include "track_options.hpp"
@@ -56,21 +59,37 @@ std::vector<std::string> cliArguments(const py::kwargs& kw, CLI::App* app, const
       inputError(fmt::format("'{}' is not an option here: the Python module writes no files", key));
     const CLI::Option* opt = app->get_option_no_throw(name);
     if (!opt) inputError(fmt::format("unknown option '{}' (rsfm.options() lists them)", key));
-    if (py::isinstance<py::bool_>(v)) {
-      if (v.cast<bool>()) {
+    // Python's bool and numpy's bool_ are flags.
+    const std::string type = py::str(py::type::of(v).attr("__name__"));
+    if (py::isinstance<py::bool_>(v) || type == "bool_") {
+      if (py::reinterpret_borrow<py::object>(v).attr("__bool__")().cast<bool>()) {
         if (opt->get_expected_min() > 0) inputError(fmt::format("option '{}' takes a value, not True", key));
         args.push_back(name);
       }
       continue;
     }
     if (opt->get_expected_min() == 0) inputError(fmt::format("option '{}' is a flag: give True or False", key));
+    // str() of a Python or numpy number is its shortest round-trip text (repr of numpy 2's
+    // scalars is not: "np.float64(612.0)").
+    auto scalar = [&](const py::handle& x) -> std::string {
+      if (py::isinstance<py::float_>(x) || py::str(py::type::of(x).attr("__name__")).cast<std::string>().rfind("float", 0) == 0)
+        return py::str(py::float_(py::reinterpret_borrow<py::object>(x)));
+      if (py::isinstance<py::sequence>(x) && !py::isinstance<py::str>(x))
+        inputError(fmt::format("option '{}': a sequence of numbers or words, not of sequences", key));
+      return py::str(x);
+    };
     std::string value;
     if (py::isinstance<py::str>(v)) {
       value = v.cast<std::string>();
-    } else if (py::isinstance<py::sequence>(v)) {
-      for (const auto& item : v.cast<py::sequence>()) value += (value.empty() ? "" : ",") + std::string(py::str(py::repr(item)));
+    } else if (py::isinstance<py::sequence>(v) || py::hasattr(v, "tolist")) {
+      const py::object list = py::hasattr(v, "tolist") ? v.attr("tolist")() : py::reinterpret_borrow<py::object>(v);
+      if (!py::isinstance<py::sequence>(list) || py::isinstance<py::str>(list)) {
+        value = scalar(list);
+      } else {
+        for (const auto& item : list.cast<py::sequence>()) value += (value.empty() ? "" : ",") + scalar(item);
+      }
     } else {
-      value = py::str(py::repr(v));
+      value = scalar(v);
     }
     args.push_back(name);
     args.push_back(value);
@@ -94,7 +113,6 @@ cli::EstimateCli estimateOptions(const py::kwargs& kw, CLI::App* app) {
   cli::addEstimateOptions(app, &e);
   parseInto(app, "estimate", cliArguments(kw, app, {"--out", "--no-plots"}));
   if (auto m = cli::finishEstimateOptions(&e); !m.empty()) inputError(m);
-  if (e.patches) inputError("model 'patches' is not in the Python module yet: use `rsfm estimate --patches`");
   return e;
 }
 
@@ -108,23 +126,23 @@ Tracks tracksFromArray(const Eigen::MatrixXd& a, const std::vector<int>& image_s
   std::vector<Eigen::Index> order(a.rows());
   std::iota(order.begin(), order.end(), 0);
   std::stable_sort(order.begin(), order.end(), [&](Eigen::Index i, Eigen::Index j) { return a(i, 0) < a(j, 0); });
+  if (principal_point && principal_point->size() != 2) inputError("image_principal_point must be (x, y)");
   const double w = image_size[0], h = image_size[1];
   const double cx = principal_point ? (*principal_point)[0] : (w - 1) / 2, cy = principal_point ? (*principal_point)[1] : (h - 1) / 2;
-  if (principal_point && principal_point->size() != 2) inputError("principal_point must be (x, y)");
   std::string csv = fmt::format("# rsfm-tracks 1\n# image_size {} {}\n# principal_point {:.17g} {:.17g}\n{}# frames {:.17g} {:.17g}\n"
                                 "# source numpy array\nframe,track,x,y\n",
                                 image_size[0], image_size[1], cx, cy, fps ? fmt::format("# fps {:.17g}\n", *fps) : "",
                                 a(order.front(), 0), a(order.back(), 0));
   for (Eigen::Index i : order) csv += fmt::format("{:.17g},{:.17g},{:.17g},{:.17g}\n", a(i, 0), a(i, 1), a(i, 2), a(i, 3));
   std::istringstream in(csv);
-  return io::readTracks(in, "tracks array (sorted by frame; line = row + 7)");
+  return io::readTracks(in, fmt::format("tracks array (rows sorted by frame; line L is sorted row L - {})", fps ? 8 : 7));
 }
 
 Tracks tracksOf(const py::object& tracks, const std::optional<std::vector<int>>& image_size,
                 const std::optional<std::vector<double>>& principal_point, std::optional<double> fps) {
   if (py::isinstance<py::str>(tracks) || py::hasattr(tracks, "__fspath__")) {
     if (image_size || principal_point || fps)
-      inputError("image_size, principal_point and fps are for an array of tracks: a tracks file states them");
+      inputError("image_size, image_principal_point and fps are for an array of tracks: a tracks file states them");
     return io::readTracks(std::string(py::str(py::module_::import("os").attr("fspath")(tracks))));
   }
   if (!image_size) inputError("an array of tracks needs image_size=(width, height)");
@@ -216,6 +234,39 @@ py::dict resultDict(const Tracks& tracks, const EstimateResult& r, const cli::Es
   return d;
 }
 
+/// The patch pipeline's result: what `rsfm estimate --patches` writes, as Python objects.
+py::dict patchResultDict(const PatchTracks& tracks, const PatchEstimateResult& pr) {
+  if (!pr.run.ok()) throw std::runtime_error("the patch filter stopped at " + pr.run.stopped);
+  cli::PatchRunReport run(tracks, pr);
+  const nlohmann::json summary = report::patchSummary(run.rep);
+  py::dict d;
+  d["summary"] = jsonToPython(summary);
+  d["focal_px"] = jsonToPython(summary["focal_px"]);
+  d["focal_sd_px"] = summary.contains("focal_sd_px") ? jsonToPython(summary["focal_sd_px"]) : py::none();
+  const auto poses = report::patchTrajectory(pr.run, tracks.image);
+  Eigen::MatrixXd traj(static_cast<Eigen::Index>(poses.size()), 8);
+  for (size_t k = 0; k < poses.size(); ++k) {
+    const auto& p = poses[k];
+    traj.row(static_cast<Eigen::Index>(k)) << p.t, p.p.x(), p.p.y(), p.p.z(), p.q.x(), p.q.y(), p.q.z(), p.q.w();
+  }
+  d["trajectory"] = traj;
+  // Per frame and live patch (patch_normals.csv): frame, patch id, centre x, y (px), the unit
+  // normal in the first camera frame (pointing from the camera to the patch), its sd (deg; NaN
+  // when the structure is not determined).
+  const bool determined = !summary.contains("structure_determined") || summary["structure_determined"].get<bool>();
+  long rows = 0;
+  for (const auto& f : pr.run.frames) rows += static_cast<long>(f.patches.size());
+  Eigen::MatrixXd pn(rows, 8);
+  long i = 0;
+  for (const auto& f : pr.run.frames)
+    for (const auto& p : f.patches) {
+      const Eigen::Vector3d n0 = f.R.transpose() * p.normal;
+      pn.row(i++) << f.frame, p.id, p.px.x(), p.px.y(), n0.x(), n0.y(), n0.z(), determined ? p.normal_sd_deg : NAN;
+    }
+  d["patch_normals"] = pn;
+  return d;
+}
+
 std::function<void(const std::string&)> noteTo(bool quiet) {
   if (quiet) return {};
   return [](const std::string& m) { fmt::print(stderr, "{}\n", m); };
@@ -236,6 +287,21 @@ py::dict estimatePy(const py::object& tracks, const std::optional<std::vector<in
   return d;
 }
 
+py::dict estimatePatchesPy(const py::object& patches, const py::kwargs& kw) {
+  CLI::App app{"rsfm.estimate_patches"};
+  cli::EstimateCli e = estimateOptions(kw, &app);
+  if (!e.patches && kw.contains("model")) inputError("estimate_patches() runs the patch model: leave out model=");
+  e.model = "patches";
+  if (auto m = cli::finishEstimateOptions(&e); !m.empty()) inputError(m);
+  const PatchTracks t = io::readPatches(std::string(py::str(py::module_::import("os").attr("fspath")(patches))));
+  PatchEstimateResult pr;
+  {
+    py::gil_scoped_release release;
+    pr = estimatePatches(t, e.pat, noteTo(e.quiet), e.quiet ? std::function<void(int, int)>{} : cli::progressReporter("estimate", "frames"));
+  }
+  return patchResultDict(t, pr);
+}
+
 py::dict runPy(const std::string& video, const py::kwargs& kw) {
   CLI::App app{"rsfm.run"};
   cli::TrackCli tc;
@@ -243,6 +309,19 @@ py::dict runPy(const std::string& video, const py::kwargs& kw) {
   cli::addPatchTrackerOptions(&app, &tc);
   const cli::EstimateCli e = estimateOptions(kw, &app);
   if (auto m = cli::finishTrackerOptions(&tc); !m.empty()) inputError(m);
+  if (e.patches) {
+    PatchTracks pt;
+    PatchEstimateResult pr;
+    {
+      py::gil_scoped_release release;
+      pt = vision::trackPatchesInput(video, tc.patches, tc.range,
+                                     e.quiet ? std::function<void(int, int)>{} : cli::progressReporter("track", "frames"));
+      pr = estimatePatches(pt, e.pat, noteTo(e.quiet), e.quiet ? std::function<void(int, int)>{} : cli::progressReporter("estimate", "frames"));
+    }
+    py::dict d = patchResultDict(pt, pr);
+    d["image_size"] = py::make_tuple(pt.image.width, pt.image.height);
+    return d;
+  }
   Tracks t;
   EstimateResult r;
   {
@@ -395,13 +474,14 @@ PYBIND11_MODULE(_rsfm, m) {
   });
 
   m.def("estimate", &estimatePy, py::arg("tracks"), py::kw_only(), py::arg("image_size") = py::none(),
-        py::arg("principal_point") = py::none(), py::arg("fps") = py::none(),
+        py::arg("image_principal_point") = py::none(), py::arg("fps") = py::none(),
         R"doc(The pipeline of `rsfm estimate` (plane finding, the homography start, the filter, the final
 refinement) on tracks.
 
 tracks: a tracks.csv path (docs/tracks.md), or an (M, 4) array of rows (frame, track, x, y) in
-    pixels, with image_size=(width, height) (and principal_point=(x, y), default the image centre;
-    fps, the source's frame rate, makes the trajectories' timestamps seconds).
+    pixels, with image_size=(width, height) (and image_principal_point=(x, y), the tracks' image
+    centre, default the middle; fps, the source's frame rate, makes the timestamps seconds).
+    (principal_point=(x, y) is the CLI's --principal-point: a known principal point, held.)
 **options: the command line's options, dashes as underscores (model="plane", focal_px=612,
     refine="none", quiet=True, ...; rsfm.options("estimate") lists them with their defaults).
 
@@ -414,12 +494,21 @@ else frame numbers), "trajectory_online" (the filter's), "refined",
 "online" (per frame: "frame", "focal_px", "focal_sd_px", "normals" (F, m, 3) unit normals in the
 reference camera frame), "labels" (per track id: plane, -1 outlier, -2 unused).
 Raises rsfm.InputError for bad input or options, RuntimeError when the filter stops.)doc");
+  m.def("estimate_patches", &estimatePatchesPy, py::arg("patches"),
+        R"doc(The patch pipeline of `rsfm estimate --patches` (Calway's filter over tracked affine
+patches, with the motion check) on a patches.csv path (docs/tracks.md).
+
+**options: the command line's estimate options (rsfm.options("estimate")).
+Returns a dict: "summary" (what summary.json holds), "focal_px" (None when not determined),
+"focal_sd_px", "trajectory" (F, 8) TUM rows, "patch_normals" (rows: frame, patch, x, y, nx, ny,
+nz in the first camera frame, normal sd in deg; NaN sd when the structure is not determined).)doc");
   m.def("run", &runPy, py::arg("video"),
         R"doc(`rsfm run` without files: tracks `video` (a video file, an image pattern such as
 frames/img%04d.png, or a folder of images), then estimate() on the tracks.
 
 **options: those of `rsfm run` (tracker and estimate options; rsfm.options("run")).
-Returns estimate()'s dict plus "tracks" ((M, 4) rows frame, track, x, y) and "image_size".)doc");
+Returns estimate()'s dict plus "tracks" ((M, 4) rows frame, track, x, y) and "image_size"; with
+model="patches", estimate_patches()'s dict plus "image_size".)doc");
   m.def("options", &optionsPy, py::arg("command") = "estimate",
         "The options of estimate() ('estimate') or run() ('run'): {name: (default, help)}.");
   m.def(

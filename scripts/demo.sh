@@ -66,5 +66,5 @@ else
   echo "== (c) skipped: $CUBE not installed (apt-get install visp-images-data)"
 fi
 echo
-echo "Reports: $OUT/rendered-run/ (evaluation.md, summary.json, trajectory.tum, planes.csv, overlay.mp4, *.png),"
+echo "Reports: $OUT/rendered-run/ (report.html, evaluation.md, summary.json, trajectory.tum, planes.csv, overlay.mp4, *.png),"
 echo "         $OUT/box-run/, $OUT/cube-run/, $OUT/cube-patches/ (docs/outputs.md describes every file)"

@@ -58,6 +58,9 @@ echo "install_example: the installed rsfm found its scripts and wrote every figu
 
 # The installed Python module.
 PYDIR=$(ls -d "$PREFIX"/lib/python3.*/dist-packages 2>/dev/null | head -1 || true)
+if [ -d "$BUILD/python/rsfm" ] && { [ -z "$PYDIR" ] || [ ! -d "$PYDIR/rsfm" ]; }; then
+  fail "the build has the Python module but the install has none under lib/python3.X/dist-packages"
+fi
 if [ -n "$PYDIR" ] && [ -d "$PYDIR/rsfm" ]; then
   v=$(cd "$WORK" && PYTHONPATH="$PYDIR" "$PY" -c "import rsfm; print(rsfm.__version__)")
   [ "rsfm $v" = "$("$PREFIX/bin/rsfm" --version)" ] || fail "installed Python module version $v"
@@ -84,6 +87,15 @@ assert s['focal_px'] is not None
 grep -q 'id="warnings"' "$WORK/est/report.html" || fail "report.html does not show the missing figures' warning"
 echo "install_example: without scripts: numbers written, warning: $(head -1 "$WORK/warn.txt")"
 mv "$PREFIX/share/rsfm/scripts.gone" "$PREFIX/share/rsfm/scripts"
+# A plot script that exits 0 without writing its figures: they are missing, not empty files.
+mkdir -p "$WORK/quiet-scripts"
+printf 'import sys\n' >"$WORK/quiet-scripts/plot_estimate.py"
+RSFM_SCRIPTS_DIR="$WORK/quiet-scripts" "$PREFIX/bin/rsfm" estimate --tracks "$WORK/tracks.csv" --out "$WORK/est" --quiet \
+  2>"$WORK/warn.txt" || fail "rsfm estimate failed with a silent plot script"
+grep -q "figures not written (.*focal.svg): plot_estimate.py exited without writing them" "$WORK/warn.txt" ||
+  { cat "$WORK/warn.txt"; fail "no warning for figures a script did not write"; }
+[ -z "$(cd "$WORK/est" && ls ./*.png ./*.svg 2>/dev/null)" ] || fail "empty figure files were kept"
+echo "install_example: a plot script that writes nothing: $(head -1 "$WORK/warn.txt")"
 "$PREFIX/bin/rsfm" estimate --tracks "$WORK/tracks.csv" --out "$WORK/est2" --quiet
 [ -e "$WORK/est2/motion.png" ] || fail "first run of the pair wrote no figure"
 "$PREFIX/bin/rsfm" estimate --tracks "$WORK/tracks.csv" --out "$WORK/est2" --quiet --no-plots

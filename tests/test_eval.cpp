@@ -4,6 +4,7 @@
 #include <random>
 
 #include "rsfm/eval/trajectory_metrics.hpp"
+#include "rsfm/report/evaluation.hpp"
 
 namespace rsfm::eval {
 namespace {
@@ -192,3 +193,19 @@ TEST(PlaneMatching, ParallelPlanesAreToldApartByScaledDistance) {
 
 }  // namespace
 }  // namespace rsfm::eval
+
+// Association by timestamp (issue 16; docs/evaluate.md): nearest pairs first, one to one.
+TEST(AssociateByTime, NearestPairsFirstEachPoseOnce) {
+  using P = std::vector<std::pair<std::size_t, std::size_t>>;
+  // The same times: every pose paired with its twin.
+  EXPECT_EQ(rsfm::report::associateByTime({0.0, 1.0, 2.0}, {0.0, 1.0, 2.0}, 0.01), (P{{0, 0}, {1, 1}, {2, 2}}));
+  // Truth 0.01 is 0.001 from estimate 0.009, truth 0 is 0.009 from it: the nearer pair wins, and
+  // truth 0 (nothing else within 0.01) stays unpaired. Walking in time order would pair truth 0.
+  EXPECT_EQ(rsfm::report::associateByTime({0.0, 0.01, 0.02}, {0.009, 0.0195}, 0.01), (P{{1, 0}, {2, 1}}));
+  // Nothing within max_diff: no pair; an estimate between two truths goes to the nearer one only.
+  EXPECT_TRUE(rsfm::report::associateByTime({0.0, 1.0}, {0.5}, 0.01).empty());
+  EXPECT_EQ(rsfm::report::associateByTime({0.0, 1.0}, {0.6}, 0.5), (P{{1, 0}}));
+  // Frame numbers (t_max_diff 0.01 frames: exact matches only), with gaps on both sides.
+  EXPECT_EQ(rsfm::report::associateByTime({0, 1, 2, 5, 6}, {1, 2, 3, 6}, 0.01), (P{{1, 0}, {2, 1}, {4, 3}}));
+  EXPECT_TRUE(rsfm::report::associateByTime({0, 1}, {}, 0.01).empty());
+}

@@ -4,7 +4,9 @@ Python bindings of the rsfm C++ library (python/README.md). The entry points:
 
 * ``rsfm.estimate(tracks, **options)``: the pipeline of ``rsfm estimate`` on a tracks file or an
   array of observations;
-* ``rsfm.run(video, **options)``: tracking, then the same pipeline (``rsfm run``);
+* ``rsfm.estimate_patches(patches, **options)``: the patch pipeline (``rsfm estimate --patches``);
+* ``rsfm.run(video, **options)``: tracking, then the same pipeline (``rsfm run``; ``model="patches"``
+  tracks affine patches);
 * ``rsfm.PlaneFilter``: the plane filter step by step (one frame's observations at a time).
 
 Options are the command line's, with dashes as underscores (``focal_px=612`` is
@@ -17,9 +19,10 @@ from ._rsfm import (  # noqa: F401
     PlaneFilter,
     __version__,
     estimate,
+    estimate_patches,
     options,
     read_tracks,
     run,
 )
 
-__all__ = ["InputError", "PlaneFilter", "__version__", "estimate", "options", "read_tracks", "run"]
+__all__ = ["InputError", "PlaneFilter", "__version__", "estimate", "estimate_patches", "options", "read_tracks", "run"]

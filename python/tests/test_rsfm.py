@@ -99,10 +99,10 @@ def test_estimate_gives_the_cli_numbers(tracks_file, tmp_path):
     # Same run from the array of the same rows: the same numbers.
     rows, size, pp, fps = rsfm.read_tracks(str(tracks_file))
     assert fps is None and r["summary"]["timestamps"] == "frame"
-    r2 = rsfm.estimate(rows, image_size=size, principal_point=pp, model="planes", quiet=True)
+    r2 = rsfm.estimate(rows, image_size=size, image_principal_point=pp, model="planes", quiet=True)
     assert r2["focal_px"] == pytest.approx(r["focal_px"], rel=1e-12)
     # With a frame rate the timestamps are seconds; nothing else changes.
-    r3 = rsfm.estimate(rows, image_size=size, principal_point=pp, fps=25.0, model="planes", quiet=True)
+    r3 = rsfm.estimate(rows, image_size=size, image_principal_point=pp, fps=25.0, model="planes", quiet=True)
     assert r3["summary"]["timestamps"] == "seconds" and r3["summary"]["fps"] == 25.0
     assert np.allclose(r3["trajectory"][:, 0], r["trajectory"][:, 0] / 25.0)
     assert np.array_equal(r3["trajectory"][:, 1:], r["trajectory"][:, 1:])
@@ -112,6 +112,11 @@ def test_options_take_effect(scene):
     rows, _ = scene
     known = rsfm.estimate(rows, image_size=(W, H), focal_px=612.0, quiet=True)
     assert known["focal_px"] == pytest.approx(612.0)
+    # numpy scalars and arrays as option values; the CLI's --principal-point (known, held).
+    known = rsfm.estimate(rows, image_size=(W, H), focal_px=np.float64(612.0), quiet=np.bool_(True),
+                          principal_point=np.array([319.5, 239.5]))
+    assert known["focal_px"] == pytest.approx(612.0)
+    assert known["summary"]["principal_point_px"] == pytest.approx([319.5, 239.5])
     online = rsfm.estimate(rows, image_size=(W, H), refine="none", quiet=True)
     assert not online["refined"]
 
@@ -126,6 +131,10 @@ def test_errors_are_the_cli_messages(scene, tracks_file):
         rsfm.estimate(rows, image_size=(W, H), out="x")
     with pytest.raises(rsfm.InputError, match="needs image_size"):
         rsfm.estimate(rows)
+    with pytest.raises(rsfm.InputError, match="image_principal_point must be"):
+        rsfm.estimate(rows, image_size=(W, H), image_principal_point=(320.0,))
+    with pytest.raises(rsfm.InputError, match="not of sequences"):
+        rsfm.estimate(rows, image_size=(W, H), principal_point=[(1, 2), (3, 4)])
     with pytest.raises(rsfm.InputError, match="4 columns|columns, expected 4"):
         rsfm.estimate(rows[:, :3], image_size=(W, H))
     dup = np.vstack([rows[:1], rows])
@@ -190,3 +199,40 @@ def test_run_tracks_a_video(tmp_path):
     fps = r["summary"]["fps"]
     assert 29 < fps < 31 and r["trajectory"][0, 0] == pytest.approx(1 / fps)
     assert r["focal_px"] is None or 300 < r["focal_px"] < 2000
+
+
+CUBE = pathlib.Path("/usr/share/visp-images-data/ViSP-images/cube")
+
+
+def test_patches_give_the_cli_numbers(tmp_path):
+    """The patch pipeline (rsfm run --model patches, then estimate --patches) from Python."""
+    if not (CUBE / "image.0000.pgm").exists():
+        pytest.skip(f"{CUBE} not installed (apt-get install visp-images-data; make test installs it)")
+    if not CLI:
+        pytest.skip("RSFM_CLI not set (ctest sets it)")
+    pattern = str(CUBE / "image.%04d.pgm")
+    out = tmp_path / "p"
+    subprocess.run([CLI, "run", pattern, "--model", "patches", "--last", "40", "--out", str(out), "--no-plots",
+                    "--no-overlay", "--quiet"], check=True)
+    cli_summary = json.loads((out / "summary.json").read_text())
+    r = rsfm.run(pattern, model="patches", last=40, quiet=True)
+    assert r["image_size"] == (384, 288)
+    assert r["summary"]["model"] == "patches"
+    assert r["summary"]["timestamps"] == "frame"  # an image sequence states no frame rate
+    for key in ("focal_px", "focal_sd_px"):
+        if cli_summary[key] is None:
+            assert r["summary"][key] is None
+        else:
+            assert r["summary"][key] == pytest.approx(cli_summary[key], rel=1e-12)
+    tum = np.loadtxt(out / "trajectory.tum")
+    assert np.allclose(tum, r["trajectory"], atol=2e-9)
+    pn = np.loadtxt(out / "patch_normals.csv", delimiter=",", skiprows=1)
+    assert pn.shape[0] == r["patch_normals"].shape[0]
+    assert np.allclose(pn[:, [0, 1]], r["patch_normals"][:, [0, 1]])
+    assert np.allclose(pn[:, 7:10], r["patch_normals"][:, 4:7], atol=2e-6)  # rx, ry, rz (the file has 6 decimals)
+    # The same from the file the run wrote.
+    r2 = rsfm.estimate_patches(str(out / "patches.csv"), quiet=True)
+    # patches.csv holds positions to 1e-4 px: the same focal length to 1 %.
+    assert r2["summary"]["focal_px"] == pytest.approx(r["summary"]["focal_px"], rel=0.01)
+    with pytest.raises(rsfm.InputError, match="leave out model"):
+        rsfm.estimate_patches(str(out / "patches.csv"), model="planes")

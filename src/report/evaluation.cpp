@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -33,26 +34,6 @@ std::vector<TumPose> byTime(const fs::path& file, std::vector<TumPose> poses, do
   return poses;
 }
 
-/// Association by timestamp as evo does (evo.core.sync.associate_trajectories): each truth pose
-/// takes the estimate pose nearest in time when it is within `max_diff`, each estimate pose used
-/// once. Returns (truth index, estimate index) pairs in time order.
-std::vector<std::pair<size_t, size_t>> associate(const std::vector<TumPose>& truth, const std::vector<TumPose>& est,
-                                                 double max_diff) {
-  std::vector<std::pair<size_t, size_t>> out;
-  std::vector<char> used(est.size(), 0);
-  size_t j = 0;
-  for (size_t i = 0; i < truth.size(); ++i) {
-    const double t = truth[i].t;
-    while (j + 1 < est.size() && est[j + 1].t <= t) ++j;
-    size_t best = j;
-    if (j + 1 < est.size() && std::abs(est[j + 1].t - t) < std::abs(est[j].t - t)) best = j + 1;
-    if (est.empty() || std::abs(est[best].t - t) > max_diff || used[best]) continue;
-    used[best] = 1;
-    out.emplace_back(i, best);
-  }
-  return out;
-}
-
 eval::Pose toPose(const TumPose& p) { return {p.p, p.q.normalized().toRotationMatrix()}; }
 
 double rotDeg(const Eigen::Matrix3d& R) {
@@ -72,6 +53,33 @@ std::string num(double v, int prec = 6) {
 }
 
 }  // namespace
+
+std::vector<std::pair<std::size_t, std::size_t>> associateByTime(const std::vector<double>& truth,
+                                                                const std::vector<double>& est, double max_diff) {
+  // Candidates: each truth time with the estimate times on either side of it, within max_diff.
+  struct Candidate {
+    double dt;
+    std::size_t i, j;
+  };
+  std::vector<Candidate> cand;
+  std::size_t j = 0;
+  for (std::size_t i = 0; i < truth.size() && !est.empty(); ++i) {
+    while (j + 1 < est.size() && est[j + 1] <= truth[i]) ++j;
+    for (std::size_t k = j; k <= j + 1 && k < est.size(); ++k)
+      if (std::abs(est[k] - truth[i]) <= max_diff) cand.push_back({std::abs(est[k] - truth[i]), i, k});
+  }
+  // Nearest pairs first, each pose used once; then in time order.
+  std::stable_sort(cand.begin(), cand.end(), [](const Candidate& a, const Candidate& b) { return a.dt < b.dt; });
+  std::vector<char> used_t(truth.size(), 0), used_e(est.size(), 0);
+  std::vector<std::pair<std::size_t, std::size_t>> out;
+  for (const Candidate& c : cand) {
+    if (used_t[c.i] || used_e[c.j]) continue;
+    used_t[c.i] = used_e[c.j] = 1;
+    out.emplace_back(c.i, c.j);
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
 
 Evaluation evaluateDirectories(const fs::path& estimate_dir, const fs::path& truth_dir, const EvaluateOptions& opt) {
   Evaluation e;
@@ -114,7 +122,10 @@ Evaluation evaluateDirectories(const fs::path& estimate_dir, const fs::path& tru
 
   std::vector<eval::Pose> E, T;
   std::vector<long long> frames;  // the truth's frame numbers (the RPE's frame distance)
-  const auto pairs = associate(tm, em, opt.t_max_diff);
+  std::vector<double> tt_s, et_s;
+  for (const auto& p : tm) tt_s.push_back(p.t);
+  for (const auto& p : em) et_s.push_back(p.t);
+  const auto pairs = associateByTime(tt_s, et_s, opt.t_max_diff);
   bool integral = true;
   for (const auto& [i, j] : pairs) integral = integral && std::abs(tm[i].t - std::round(tm[i].t)) < 1e-6;
   for (size_t n = 0; n < pairs.size(); ++n) {

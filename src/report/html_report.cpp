@@ -215,7 +215,13 @@ std::string htmlReport(const HtmlReport& r) {
   o += "<h2>Figures</h2>\n";
   if (r.figures.empty()) o += "<p>No figures" + (r.figures_note.empty() ? std::string() : ": " + esc(r.figures_note)) + ".</p>\n";
   for (const auto& [caption, file] : r.figures) {
-    const std::string png = readFile(file);
+    std::string png;
+    try {
+      png = readFile(file);
+    } catch (const std::exception& e) {
+      o += "<p class=\"nd\">" + esc(caption) + ": " + esc(e.what()) + "</p>\n";
+      continue;
+    }
     o += "<figure><img alt=\"" + esc(caption) + "\" src=\"data:image/png;base64," +
          base64(reinterpret_cast<const unsigned char*>(png.data()), png.size()) + "\"><figcaption>" + esc(caption) +
          "</figcaption></figure>\n";

@@ -116,20 +116,24 @@ nlohmann::json patchSummary(const PatchReport& r) {
   return j;
 }
 
-nlohmann::json writePatchReport(const PatchReport& r, const std::filesystem::path& dir, AtomicFileSet* files, bool plots,
-                                Figures* figures) {
-  const PatchRunResult& res = *r.result;
+std::vector<TumPose> patchTrajectory(const PatchRunResult& res, const ImageInfo& image) {
   std::vector<TumPose> poses;
   for (const auto& f : res.frames) {
     TumPose tp;
-    tp.t = r.tracks->image.timestamp(f.frame);
+    tp.t = image.timestamp(f.frame);
     const Eigen::Matrix3d Rc = f.R.transpose();
     tp.p = -Rc * f.T;
     tp.q = canonical(Eigen::Quaterniond(Rc));
     poses.push_back(tp);
   }
+  return poses;
+}
+
+nlohmann::json writePatchReport(const PatchReport& r, const std::filesystem::path& dir, AtomicFileSet* files, bool plots,
+                                Figures* figures) {
+  const PatchRunResult& res = *r.result;
   std::ostringstream tum;
-  writeTum(tum, poses);
+  writeTum(tum, patchTrajectory(res, r.tracks->image));
   files->write(dir / "trajectory.tum", tum.str());
   std::string pc = "frame,patch,x,y,nx,ny,nz,rx,ry,rz,normal_sd_deg,depth,angle_to_median_deg,beta,focal_px\n";
   for (const auto& f : res.frames) {

@@ -68,10 +68,22 @@ Figures makeFigures(io::AtomicFileSet* files, const std::filesystem::path& dir, 
     for (const auto& n : names) temps.push_back(files->temp(dir / n));
     for (const auto& t : temps) inputs.push_back(t.string());
     runScript(script, inputs);
-    out.written = names;
-    out.files = temps;
+    // A script that exits 0 without writing a figure leaves its placeholder empty: missing too.
+    for (size_t i = 0; i < names.size(); ++i) {
+      std::error_code ec;
+      if (std::filesystem::file_size(temps[i], ec) > 0 && !ec) {
+        out.written.push_back(names[i]);
+        out.files.push_back(temps[i]);
+      } else {
+        files->drop(temps[i]);
+        out.missing.push_back(names[i]);
+      }
+    }
+    if (!out.missing.empty()) out.why = script + " exited without writing them";
   } catch (const std::exception& e) {
     for (const auto& t : temps) files->drop(t);
+    out.written.clear();
+    out.files.clear();
     out.missing = names;
     out.why = io::printable(e.what(), 300);
   }

@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "rsfm/eval/trajectory_metrics.hpp"
@@ -45,6 +46,13 @@ struct Evaluation {
   std::vector<int> unmatched_estimates;  ///< estimated planes with no truth plane
   std::vector<std::string> notes;        ///< warnings (image size mismatch, degenerate alignment...)
 };
+
+/// Association by timestamp (docs/evaluate.md): `truth` and `est` are increasing times; each truth
+/// time is a candidate pair with the estimate times on either side of it that lie within
+/// `max_diff`; the nearest pairs are taken first, each time used once (evo's nearest-in-time rule,
+/// one to one). Returns (truth index, estimate index) pairs in time order.
+std::vector<std::pair<std::size_t, std::size_t>> associateByTime(const std::vector<double>& truth,
+                                                                const std::vector<double>& est, double max_diff);
 
 /// Reads both directories and computes every metric. Throws InputError on unreadable or invalid
 /// files and when fewer than 3 poses are associated by timestamp.

@@ -32,7 +32,7 @@ struct HtmlReport {
 /// run that ended early. One line each.
 std::vector<std::string> notDeterminedFindings(const nlohmann::json& summary);
 
-/// The page (UTF-8 HTML5). Throws std::runtime_error when a figure file cannot be read.
+/// The page (UTF-8 HTML5). A figure file that cannot be read is named in the page instead.
 std::string htmlReport(const HtmlReport& r);
 
 /// RFC 4648 base64 of `data`.

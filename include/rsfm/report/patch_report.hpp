@@ -8,6 +8,7 @@
 #include <string>
 
 #include "rsfm/io/atomic_file.hpp"
+#include "rsfm/io/tum.hpp"
 #include "rsfm/report/report.hpp"
 #include "rsfm/pipeline/motion_check.hpp"
 #include "rsfm/pipeline/patch_pipeline.hpp"
@@ -26,6 +27,8 @@ struct PatchReport {
 
 
 nlohmann::json patchSummary(const PatchReport& r);
+/// The camera poses of a patch run as trajectory.tum holds them (timestamps: docs/outputs.md).
+std::vector<io::TumPose> patchTrajectory(const PatchRunResult& res, const ImageInfo& image);
 /// Writes every file into `files` (the caller commits); returns the summary.
 nlohmann::json writePatchReport(const PatchReport& r, const std::filesystem::path& dir, io::AtomicFileSet* files,
                                 bool plots = true, Figures* figures = nullptr);
