@@ -19,6 +19,16 @@ else
   echo "overlay.mp4: ffprobe missing (apt-get install ffmpeg), codec not checked"
 fi
 grep -q '"codec": "h264"' "$TMP/e/summary.json" || { echo "FAIL summary.json does not record the overlay's codec h264"; exit 1; }
+# Odd frame sizes: OpenCV's writer used to drop a column and a row (and wrote a damaged stream);
+# the overlay is padded to even sides instead (docs/outputs.md).
+if command -v ffmpeg >/dev/null; then
+  mkdir -p "$TMP/odd"
+  ffmpeg -loglevel error -i "$TMP/r/video.mp4" -vf "format=rgb24,crop=319:239:0:0" -frames:v 40 "$TMP/odd/f%04d.png"
+  "$RSFM" run "$TMP/odd/f%04d.png" --out "$TMP/oddrun" --quiet --no-plots || { echo "FAIL run on 319x239 frames"; exit 1; }
+  size=$(ffprobe -v error -select_streams v:0 -show_entries stream=codec_name,width,height -of csv=p=0 "$TMP/oddrun/overlay.mp4" 2>&1)
+  [ "$size" = "h264,320,240" ] || { echo "FAIL overlay of 319x239 frames: '$size', expected h264,320,240"; exit 1; }
+  echo "overlay.mp4 of 319x239 frames: $size (padded, nothing dropped)"
+fi
 "$RSFM" evaluate --estimate "$TMP/e" --truth "$TMP/r/truth" >"$TMP/table.txt"
 for f in trajectory.tum planes.csv summary.json labels.csv tracks.csv overlay.mp4 report.html motion.png normals.png focal.png \
          motion.svg normals.svg focal.svg evaluation.json evaluation.md; do

@@ -56,9 +56,23 @@ std::vector<std::vector<Eigen::Vector3d>> planeGrid(const Tracks& tracks, const 
   return g;
 }
 
+/// The video's frame size: H.264 and MPEG-4 in 4:2:0 need an even width and height (OpenCV's
+/// writer would otherwise drop the last column or row), so an odd side gets one more pixel.
+cv::Size evenSize(cv::Size s) { return {s.width + s.width % 2, s.height + s.height % 2}; }
+
+/// Writes one frame, padded with black on the right / bottom to evenSize().
+void writeFrame(cv::VideoWriter* vw, const cv::Mat& bgr) {
+  if (bgr.cols % 2 == 0 && bgr.rows % 2 == 0) {
+    vw->write(bgr);
+    return;
+  }
+  cv::Mat padded;
+  cv::copyMakeBorder(bgr, padded, 0, bgr.rows % 2, 0, bgr.cols % 2, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+  vw->write(padded);
+}
+
 /// Opens `vw` for H.264 in MP4 (fourcc avc1, FFmpeg's libx264: playable in browsers), else
-/// MPEG-4 Part 2 (mp4v) with a warning in `info` (the encoder missing, or a size H.264's 4:2:0
-/// sampling refuses: odd width or height).
+/// MPEG-4 Part 2 (mp4v) with a warning in `info` (FFmpeg without an H.264 encoder).
 void openWriter(cv::VideoWriter* vw, const std::filesystem::path& path, double fps, cv::Size size, OverlayInfo* info) {
   if (vw->open(path.string(), cv::CAP_FFMPEG, cv::VideoWriter::fourcc('a', 'v', 'c', '1'), fps, size)) {
     info->codec = "h264";
@@ -67,7 +81,7 @@ void openWriter(cv::VideoWriter* vw, const std::filesystem::path& path, double f
   if (vw->open(path.string(), cv::CAP_FFMPEG, cv::VideoWriter::fourcc('m', 'p', '4', 'v'), fps, size)) {
     info->codec = "mpeg4";
     info->warning = fmt::format("overlay.mp4 is MPEG-4 Part 2, which browsers do not play: no H.264 encoder for {}x{} "
-                                "frames (FFmpeg's libx264 missing, or an odd frame size)",
+                                "frames (FFmpeg's libx264 missing?)",
                                 size.width, size.height);
     return;
   }
@@ -100,7 +114,7 @@ OverlayInfo writeOverlay(const std::string& input, FrameRange range, const Track
     const int k = src.index() - range.first;  // index within tracks.frames
     if (img.channels() == 1) cv::cvtColor(img, bgr, cv::COLOR_GRAY2BGR);
     else bgr = img.clone();
-    if (!vw.isOpened()) openWriter(&vw, path, src.fps(), bgr.size(), &info);
+    if (!vw.isOpened()) openWriter(&vw, path, src.fps(), evenSize(bgr.size()), &info);
     const TrackFrame& tf = result.frames[fi];
     // Plane grids with this frame's motion: u = X_C / (1 + beta Z_C), X_C = t + R X.
     for (size_t j = 0; j < grids.size(); ++j) {
@@ -138,7 +152,7 @@ OverlayInfo writeOverlay(const std::string& input, FrameRange range, const Track
                 0.6, {255, 255, 255}, 2, cv::LINE_AA);
     cv::putText(bgr, fmt::format("frame {}  f = {:.0f} px", tf.frame, s / tf.beta), {10, 22}, cv::FONT_HERSHEY_SIMPLEX,
                 0.6, {0, 0, 0}, 1, cv::LINE_AA);
-    vw.write(bgr);
+    writeFrame(&vw, bgr);
     keepPoster(bgr, fi, result.frames.size(), &info);
     ++fi;
   }
@@ -160,7 +174,7 @@ OverlayInfo writePatchOverlay(const std::string& input, FrameRange range, const 
     const int k = src.index() - range.first;
     if (img.channels() == 1) cv::cvtColor(img, bgr, cv::COLOR_GRAY2BGR);
     else bgr = img.clone();
-    if (!vw.isOpened()) openWriter(&vw, path, src.fps(), bgr.size(), &info);
+    if (!vw.isOpened()) openWriter(&vw, path, src.fps(), evenSize(bgr.size()), &info);
     const PatchRunFrame& f = result.frames[fi];
     const NormalAgreement agree = normalAgreement(f);
     for (size_t i = 0; i < f.patches.size(); ++i) {
@@ -200,7 +214,7 @@ OverlayInfo writePatchOverlay(const std::string& input, FrameRange range, const 
                                          agree.within_5deg, f.patches.size());
     cv::putText(bgr, text, {10, 22}, cv::FONT_HERSHEY_SIMPLEX, 0.5, {255, 255, 255}, 2, cv::LINE_AA);
     cv::putText(bgr, text, {10, 22}, cv::FONT_HERSHEY_SIMPLEX, 0.5, {0, 0, 0}, 1, cv::LINE_AA);
-    vw.write(bgr);
+    writeFrame(&vw, bgr);
     keepPoster(bgr, fi, result.frames.size(), &info);
     ++fi;
   }
