@@ -19,6 +19,11 @@ else
   echo "overlay.mp4: ffprobe missing (apt-get install ffmpeg), codec not checked"
 fi
 grep -q '"codec": "h264"' "$TMP/e/summary.json" || { echo "FAIL summary.json does not record the overlay's codec h264"; exit 1; }
+# The run's tracks.csv reproduces the run: `rsfm estimate` on it gives the same trajectory and planes.
+"$RSFM" estimate --tracks "$TMP/e/tracks.csv" --out "$TMP/e2" --quiet --no-plots
+cmp -s "$TMP/e/trajectory.tum" "$TMP/e2/trajectory.tum" && cmp -s "$TMP/e/planes.csv" "$TMP/e2/planes.csv" ||
+  { echo "FAIL rsfm estimate on the run's tracks.csv differs from the run"; exit 1; }
+echo "rsfm estimate on the run's tracks.csv: trajectory.tum and planes.csv identical to the run's"
 # Odd frame sizes: OpenCV's writer used to drop a column and a row (and wrote a damaged stream);
 # the overlay is padded to even sides instead (docs/outputs.md).
 if command -v ffmpeg >/dev/null; then
