@@ -65,4 +65,14 @@ std::string& invocationStorage() {
 
 const std::string& invocation() { return detail::invocationStorage(); }
 
+void warnFigures(const report::Figures& f) {
+  if (const std::string w = f.warning(); !w.empty()) fmt::print(stderr, "rsfm: warning: {}\n", w);
+}
+
+std::string wroteFigures(const report::Figures& f) {
+  std::string out;
+  for (const auto& n : f.written) out += ", " + n;
+  return out;
+}
+
 }  // namespace rsfm::cli

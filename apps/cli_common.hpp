@@ -10,6 +10,8 @@
 #include <string>
 #include <vector>
 
+#include "rsfm/report/report.hpp"
+
 namespace rsfm::cli {
 
 constexpr int kBadInput = 2;
@@ -31,6 +33,12 @@ struct Command {
   CLI::App* app = nullptr;
   std::function<int()> run;
 };
+
+/// A figure that could not be made is a warning, printed also with --quiet; the numbers are
+/// written regardless (docs/outputs.md, "Figures").
+void warnFigures(const report::Figures& f);
+/// ", a.png, a.svg" for the figures made (the end of a "wrote ..." line).
+std::string wroteFigures(const report::Figures& f);
 
 /// The whole command line as typed (recorded in reports).
 const std::string& invocation();

@@ -245,17 +245,21 @@ std::string cameraYamlOf(const EstimateResult& r, const EstimateOptions& o, cons
                             f.camera[2], f.camera[3], extra);
 }
 
-/// A figure that could not be made is a warning (always printed, also with --quiet); the numbers
-/// are written regardless (docs/outputs.md, "Figures").
-void warnMissingFigures(const nlohmann::json& summary) {
-  if (!summary.contains("figures") || summary["figures"]["missing"].empty()) return;
-  std::string names;
-  for (const auto& m : summary["figures"]["missing"]) names += (names.empty() ? "" : ", ") + m.get<std::string>();
-  fmt::print(stderr, "rsfm: warning: figures not written ({}): {}\n", names, summary["figures"]["why"].get<std::string>());
+/// The overlay's codec into summary.json's "overlay", its fallback warning into `warnings`.
+void recordOverlay(const vision::OverlayInfo& ov, nlohmann::json* extra, std::vector<std::string>* warnings) {
+  (*extra)["overlay"] = {{"file", "overlay.mp4"}, {"codec", ov.codec}};
+  if (!ov.warning.empty()) warnings->push_back(ov.warning);
 }
 
-bool figuresWritten(const nlohmann::json& summary) {
-  return summary.contains("figures") && !summary["figures"]["written"].empty();
+/// The patch filter's focal length far (> 3 sigma) from the motion check's, or "".
+std::string patchFocalDisagreement(const nlohmann::json& summary) {
+  if (!summary.contains("patch_filter_focal_z") || !summary["patch_filter_focal_z"].is_number() ||
+      std::abs(summary["patch_filter_focal_z"].get<double>()) <= 3)
+    return {};
+  return fmt::format("the patch filter's focal length {:.1f} +- {:.1f} px disagrees with the motion check's "
+                     "({:.1f} sigma); the check's bundle adjustment is reported",
+                     summary["patch_filter_focal_px"].get<double>(), summary["patch_filter_focal_sd_px"].get<double>(),
+                     summary["patch_filter_focal_z"].get<double>());
 }
 
 /// The pipeline's notes: printed unless quiet; its warnings (lines "warning: ...") also kept for
@@ -352,16 +356,15 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
   EstimateRunReport run(tracks, r, e);
   report::EstimateReport& rep = run.rep;
   nlohmann::json summary;
+  report::Figures fig;
   if (int rc = guarded([&] {
         io::AtomicFileSet files;
         rep.seconds = now() - t_start;
         vision::OverlayInfo ov;
         if (overlay) {
           ov = overlay(r, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
-          rep.extra["overlay"] = {{"file", "overlay.mp4"}, {"codec", ov.codec}};
-          if (!ov.warning.empty()) warnings.push_back(ov.warning);
+          recordOverlay(ov, &rep.extra, &warnings);
         }
-        report::Figures fig;
         summary = report::writeEstimateReport(rep, e.out, &files, e.plots, &fig);
         if (!fig.missing.empty()) warnings.push_back(fig.warning());
         if (write_tracks) files.write(std::filesystem::path(e.out) / "tracks.csv", io::tracksToString(tracks));
@@ -372,8 +375,8 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
         if (!ov.warning.empty()) fmt::print(stderr, "rsfm: warning: {}\n", ov.warning);
       }))
     return rc;
-  warnMissingFigures(summary);
-  const bool plotted = figuresWritten(summary);
+  warnFigures(fig);
+  const bool plotted = !fig.written.empty();
   if (!e.quiet) {
     const auto& s = summary;
     if (s["focal_px"].is_null())
@@ -417,33 +420,28 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
   PatchRunReport run(tracks, pr);
   report::PatchReport& rep = run.rep;
   nlohmann::json summary;
+  report::Figures fig;
+  std::string disagreement;
   if (int rc = guarded([&] {
         io::AtomicFileSet files;
         rep.seconds = now() - t_start;
         vision::OverlayInfo ov;
         if (overlay) {
           ov = overlay(res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
-          rep.extra["overlay"] = {{"file", "overlay.mp4"}, {"codec", ov.codec}};
-          if (!ov.warning.empty()) warnings.push_back(ov.warning);
+          recordOverlay(ov, &rep.extra, &warnings);
         }
-        report::Figures fig;
         summary = report::writePatchReport(rep, e.out, &files, e.plots, &fig);
         if (!fig.missing.empty()) warnings.push_back(fig.warning());
-        if (summary.contains("patch_filter_focal_z") && summary["patch_filter_focal_z"].is_number() &&
-            std::abs(summary["patch_filter_focal_z"].get<double>()) > 3)
-          warnings.push_back(fmt::format("the patch filter's focal length {:.1f} +- {:.1f} px disagrees with the motion "
-                                         "check's ({:.1f} sigma); the check's bundle adjustment is reported",
-                                         summary["patch_filter_focal_px"].get<double>(),
-                                         summary["patch_filter_focal_sd_px"].get<double>(),
-                                         summary["patch_filter_focal_z"].get<double>()));
+        disagreement = patchFocalDisagreement(summary);
+        if (!disagreement.empty()) warnings.push_back(disagreement);
         if (write_patches) files.write(std::filesystem::path(e.out) / "patches.csv", io::patchesToString(tracks));
         writeHtmlReport(&files, e.out, summary, fig, e.plots, warnings, overlay ? &ov : nullptr, tracks.source);
         files.commit();
         if (!ov.warning.empty()) fmt::print(stderr, "rsfm: warning: {}\n", ov.warning);
       }))
     return rc;
-  warnMissingFigures(summary);
-  const bool plotted = figuresWritten(summary);
+  warnFigures(fig);
+  const bool plotted = !fig.written.empty();
   if (!e.quiet && !summary["structure_determined"].get<bool>()) {
     // One line for what the data do not determine (issue 17), instead of confident numbers.
     const std::string focal =
@@ -461,12 +459,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
                e.shown_out.empty() ? e.out : e.shown_out, plotted ? ", patch_run.png" : "", write_patches ? ", patches.csv" : "",
                overlay ? ", overlay.mp4" : "");
   } else if (!e.quiet) {
-    if (summary.contains("patch_filter_focal_z") && summary["patch_filter_focal_z"].is_number() &&
-        std::abs(summary["patch_filter_focal_z"].get<double>()) > 3)
-      fmt::print(stderr, "warning: the patch filter's focal length {:.1f} +- {:.1f} px disagrees with the motion check's "
-                 "({:.1f} sigma); the check's bundle adjustment is reported\n",
-                 summary["patch_filter_focal_px"].get<double>(), summary["patch_filter_focal_sd_px"].get<double>(),
-                 summary["patch_filter_focal_z"].get<double>());
+    if (!disagreement.empty()) fmt::print(stderr, "warning: {}\n", disagreement);
     const auto& ln = summary["last_frame_normals"];
     fmt::print(stderr,
                "estimate: {} frames, {} patches ({} joined, {} left), focal {:.1f} +- {:.1f} px; last frame: {} of {} patch "

@@ -17,23 +17,6 @@
 #include "rsfm/experiment/patches.hpp"
 
 namespace rsfm::cli {
-namespace {
-
-/// ", a.png, a.svg" for the figures made (the end of the "wrote ..." line).
-std::string wroteFigures(const rsfm::report::Figures& f) {
-  std::string out;
-  for (const auto& n : f.written) out += ", " + n;
-  return out;
-}
-
-/// A figure that could not be made is a warning, printed also with --quiet; the numbers are
-/// written regardless (docs/outputs.md, "Figures").
-void warnFigures(const rsfm::report::Figures& f) {
-  if (const std::string w = f.warning(); !w.empty()) fmt::print(stderr, "rsfm: warning: {}\n", w);
-}
-
-}  // namespace
-
 
 void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   auto* exp = app.add_subcommand("experiment", "reproduce the papers' synthetic experiments");

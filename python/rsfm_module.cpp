@@ -163,13 +163,11 @@ Eigen::MatrixXd trackRows(const Tracks& t) {
 py::object jsonToPython(const nlohmann::json& j) { return py::module_::import("json").attr("loads")(j.dump()); }
 
 /// TUM rows (t, tx, ty, tz, qx, qy, qz, qw): the camera in the reference frame (docs/outputs.md).
-Eigen::MatrixXd trajectory(const TrackFilterResult& r, const ImageInfo& image) {
-  Eigen::MatrixXd out(static_cast<Eigen::Index>(r.frames.size()), 8);
-  for (size_t k = 0; k < r.frames.size(); ++k) {
-    Eigen::Vector3d p;
-    Eigen::Quaterniond q;
-    report::poseOf(r.frames[k], &p, &q);
-    out.row(static_cast<Eigen::Index>(k)) << image.timestamp(r.frames[k].frame), p.x(), p.y(), p.z(), q.x(), q.y(), q.z(), q.w();
+Eigen::MatrixXd tumRows(const std::vector<io::TumPose>& poses) {
+  Eigen::MatrixXd out(static_cast<Eigen::Index>(poses.size()), 8);
+  for (size_t k = 0; k < poses.size(); ++k) {
+    const auto& p = poses[k];
+    out.row(static_cast<Eigen::Index>(k)) << p.t, p.p.x(), p.p.y(), p.p.z(), p.q.x(), p.q.y(), p.q.z(), p.q.w();
   }
   return out;
 }
@@ -201,8 +199,8 @@ py::dict resultDict(const Tracks& tracks, const EstimateResult& r, const cli::Es
     d["plane_distances"] = column("plane_distances");
     d["plane_distance_sd"] = column("plane_distance_sd");
   }
-  d["trajectory"] = trajectory(r.main(), tracks.image);
-  d["trajectory_online"] = trajectory(r.online, tracks.image);
+  d["trajectory"] = tumRows(report::trajectoryPoses(r.main(), tracks.image));
+  d["trajectory_online"] = tumRows(report::trajectoryPoses(r.online, tracks.image));
   d["refined"] = r.refined.ok;
   // Per frame, the online filter: frame, focal (px), its sd, and each plane's unit normal in the
   // reference camera frame (n . Y = d, pointing from the camera to the plane).
@@ -243,13 +241,7 @@ py::dict patchResultDict(const PatchTracks& tracks, const PatchEstimateResult& p
   d["summary"] = jsonToPython(summary);
   d["focal_px"] = jsonToPython(summary["focal_px"]);
   d["focal_sd_px"] = summary.contains("focal_sd_px") ? jsonToPython(summary["focal_sd_px"]) : py::none();
-  const auto poses = report::patchTrajectory(pr.run, tracks.image);
-  Eigen::MatrixXd traj(static_cast<Eigen::Index>(poses.size()), 8);
-  for (size_t k = 0; k < poses.size(); ++k) {
-    const auto& p = poses[k];
-    traj.row(static_cast<Eigen::Index>(k)) << p.t, p.p.x(), p.p.y(), p.p.z(), p.q.x(), p.q.y(), p.q.z(), p.q.w();
-  }
-  d["trajectory"] = traj;
+  d["trajectory"] = tumRows(report::patchTrajectory(pr.run, tracks.image));
   // Per frame and live patch (patch_normals.csv): frame, patch id, centre x, y (px), the unit
   // normal in the first camera frame (pointing from the camera to the patch), its sd (deg; NaN
   // when the structure is not determined).

@@ -132,9 +132,6 @@ inline void writeCsvHeader(std::ostream& os, const char* magic, const ImageInfo&
   if (!source.empty()) os << "# source " << source << "\n";
 }
 
-/// The largest frame rate a header may state (frames per second).
-inline constexpr double kMaxFps = 1000.0;
-
 /// The '#' header shared by tracks.csv and patches.csv: "# <magic> 1" first, then image_size,
 /// principal_point, optional fps, frames, source (other '#' lines are comments or format-specific keys).
 struct CsvHeader {
@@ -182,8 +179,9 @@ struct CsvHeader {
       frames = true;
     } else if (key == "fps") {
       std::array<double, 1> v{};
-      if (!headerNumbers(ss, &v) || !(v[0] > 0) || v[0] > kMaxFps)
-        throw inputError(file, ln, fmt::format("fps needs one number above 0 and at most {} (frames per second)", kMaxFps));
+      if (!headerNumbers(ss, &v) || !(v[0] > 0) || v[0] > ImageInfo::kMaxFps)
+        throw inputError(file, ln, fmt::format("fps needs one number above 0 and at most {} (frames per second)",
+                                               ImageInfo::kMaxFps));
       image.fps = v[0];
     } else if (key == "source") {
       std::getline(ss >> std::ws, source);

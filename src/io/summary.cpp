@@ -1,4 +1,5 @@
 #include "rsfm/io/summary.hpp"
+#include "rsfm/track/tracks.hpp"
 
 #include "rsfm/io/json_text.hpp"
 
@@ -122,7 +123,8 @@ Summary readSummaryText(const std::string& text, const std::filesystem::path& fi
   }
   if (j.contains("fps") && !j.at("fps").is_null()) {
     s.fps = number(file, j.at("fps"), "\"fps\"");
-    if (!(*s.fps > 0) || *s.fps > 1000) bad(file, "\"fps\" must be above 0 and at most 1000 (frames per second)");
+    if (!(*s.fps > 0) || *s.fps > ImageInfo::kMaxFps)
+      bad(file, fmt::format("\"fps\" must be above 0 and at most {} (frames per second)", ImageInfo::kMaxFps));
   }
   if (j.contains("radial_distortion") && !j.at("radial_distortion").is_null()) {
     const json& d = j.at("radial_distortion");

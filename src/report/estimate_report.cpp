@@ -97,6 +97,17 @@ nlohmann::json finalEstimates(const TrackFilterResult& res) {
 
 }  // namespace
 
+std::vector<TumPose> trajectoryPoses(const TrackFilterResult& res, const ImageInfo& image) {
+  std::vector<TumPose> poses;
+  for (const auto& f : res.frames) {
+    TumPose tp;
+    tp.t = image.timestamp(f.frame);
+    poseOf(f, &tp.p, &tp.q);
+    poses.push_back(tp);
+  }
+  return poses;
+}
+
 nlohmann::json figuresJson(const Figures& f) {
   nlohmann::json j = {{"written", f.written}, {"missing", f.missing}};
   if (!f.missing.empty()) j["why"] = f.why;
@@ -260,15 +271,8 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
 namespace {
 
 std::string tumText(const TrackFilterResult& res, const ImageInfo& image) {
-  std::vector<TumPose> poses;
-  for (const auto& f : res.frames) {
-    TumPose tp;
-    tp.t = image.timestamp(f.frame);
-    poseOf(f, &tp.p, &tp.q);
-    poses.push_back(tp);
-  }
   std::ostringstream tum;
-  writeTum(tum, poses);
+  writeTum(tum, trajectoryPoses(res, image));
   return tum.str();
 }
 

@@ -1,5 +1,7 @@
 #include "rsfm/vision/frame_source.hpp"
 
+#include "rsfm/track/tracks.hpp"
+
 #include <fmt/format.h>
 
 #include <algorithm>
@@ -92,7 +94,7 @@ FrameSource::FrameSource(const std::string& input) : input_(input) {
   const double n = cap_->get(cv::CAP_PROP_FRAME_COUNT);
   count_ = n > 0 ? static_cast<int>(n) : -1;
   const double fps = cap_->get(cv::CAP_PROP_FPS);
-  if (fps > 0 && fps <= 1000) {
+  if (fps > 0 && fps <= ImageInfo::kMaxFps) {
     fps_ = fps;
     fps_known_ = true;
   }

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "rsfm/io/atomic_file.hpp"
+#include "rsfm/io/tum.hpp"
 #include "rsfm/pipeline/refine.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
 #include "rsfm/report/report.hpp"
@@ -51,6 +52,9 @@ nlohmann::json summaryHead(const std::string& model, int frames, int first_frame
 /// caller's extra keys.
 void summaryTail(nlohmann::json* j, const std::string& stopped, const std::string& command, double seconds,
                  const std::string& conventions, const nlohmann::json& extra);
+
+/// The camera poses of a run as trajectory.tum holds them (timestamps: docs/outputs.md).
+std::vector<io::TumPose> trajectoryPoses(const TrackFilterResult& res, const ImageInfo& image);
 
 /// summary.json's "figures": {"written": [names], "missing": [names], "why": "..." (only when
 /// something is missing)} (docs/outputs.md, "Figures").

@@ -18,6 +18,8 @@ struct ImageInfo {
   /// Frames per second of the source (a video's rate; tracks.csv's '# fps'); 0 when unknown (an
   /// image sequence, a tracks file without the key). Timestamps: docs/outputs.md.
   double fps = 0.0;
+  /// The largest frame rate rsfm takes from a video or a file (frames per second).
+  static constexpr double kMaxFps = 1000.0;
   /// A width x height image with the default principal point, the image centre.
   static ImageInfo centred(int width, int height) { return {width, height, (width - 1) / 2.0, (height - 1) / 2.0}; }
   /// The timestamp of frame `frame` (frame numbers of the input, the first frame 0): seconds,
