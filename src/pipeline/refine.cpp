@@ -75,6 +75,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   }
   const double s = online.scale_px, cx = tracks.image.cx, cy = tracks.image.cy;
   const auto spans = trackSpans(tracks);
+  const int n_ids = tracks.idBound();  // O(observations): computed once
   const TrackFrame& last = online.frames.back();
   r.camera_free = {ro.estimate_principal_point, ro.estimate_principal_point, ro.estimate_distortion, ro.estimate_distortion};
   const bool known_focal = fo.focal_px > 0;
@@ -97,11 +98,11 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     }
     std::vector<int> point_of_track_from;
     if (from) {
-      point_of_track_from.assign(tracks.idBound(), -1);
+      point_of_track_from.assign(n_ids, -1);
       for (std::size_t i = 0; i < from_track_of_point->size(); ++i) point_of_track_from[(*from_track_of_point)[i]] = static_cast<int>(i);
     }
-    std::vector<int> point_of_track(tracks.idBound(), -1);
-    for (int id = 0; id < tracks.idBound(); ++id) {
+    std::vector<int> point_of_track(n_ids, -1);
+    for (int id = 0; id < n_ids; ++id) {
       if (lab[id] < 0 || lab[id] >= m || spans[id].length() < std::max(2, fo.min_track_frames)) continue;
       Eigen::Vector2d ref;
       if (from && point_of_track_from[id] >= 0) {
@@ -170,7 +171,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   std::vector<int> selected = labels;
   if (ro.tracks_per_plane_and_frame > 0) {
     std::vector<int> order;
-    for (int id = 0; id < tracks.idBound(); ++id)
+    for (int id = 0; id < n_ids; ++id)
       if (labels[id] >= 0 && labels[id] < m && spans[id].length() >= std::max(2, fo.min_track_frames)) order.push_back(id);
     std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return spans[a].length() > spans[b].length(); });
     std::vector<std::vector<int>> count(m, std::vector<int>(F, 0));
@@ -290,7 +291,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
         p = std::move(q);
         res = std::move(res2);
         r.iterations += res.iterations;
-        for (int id = 0; id < tracks.idBound(); ++id)
+        for (int id = 0; id < n_ids; ++id)
           if (lab[id] == -1 && selected[id] >= 0) r.labels[id] = -1;
       } else {
         r.relabelled = 0;  // keep the previous solve
