@@ -500,6 +500,7 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
     so.linear_solver_ordering = ordering;
     so.linear_solver_type = ceres::DENSE_SCHUR;
   }
+  if (options.trust_region == PlaneBatchOptions::TrustRegion::Dogleg) so.trust_region_strategy_type = ceres::DOGLEG;
   so.max_num_iterations = options.max_iterations;
   so.function_tolerance = options.function_tolerance;
   so.parameter_tolerance = options.parameter_tolerance;

@@ -161,6 +161,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     bo.camera_prior_sd = {pp_sd, pp_sd, ro.distortion_prior_sd, ro.distortion_prior_sd};
   }
   bo.eliminate_motions_first = true;
+  bo.trust_region = PlaneBatchOptions::TrustRegion::Dogleg;
   auto solve = [&](Problem& p, double sigma_px, PlaneBatchResult* out) {
     p.data.sigma_uv = sigma_px / s;
     *out = solvePlaneBatch(p.data, p.start, bo);

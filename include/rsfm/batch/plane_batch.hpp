@@ -53,7 +53,12 @@ struct PlaneBatchOptions {
   /// The other degenerate alternative: no rotation in any frame (each frame's omega held at zero;
   /// the caller starts every R at the identity).
   bool translation_only = false;
-  int max_iterations = 200;         ///< Levenberg-Marquardt iterations
+  /// Trust-region strategy of Ceres: Levenberg-Marquardt (the experiments) or Powell's dogleg
+  /// (the refinement: the same optimum in fewer and cheaper iterations on its long, nearly
+  /// degenerate camera directions; docs/performance.md, "The refinement").
+  enum class TrustRegion { LevenbergMarquardt, Dogleg };
+  TrustRegion trust_region = TrustRegion::LevenbergMarquardt;
+  int max_iterations = 200;         ///< trust-region iterations
   double function_tolerance = 1e-12;
   double parameter_tolerance = 1e-12;
   bool compute_covariance = true;   ///< covariance of beta and the planes at the optimum

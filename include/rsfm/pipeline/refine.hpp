@@ -38,7 +38,7 @@ struct RefineOptions {
   bool estimate_distortion = true;     ///< false: k1 = k2 = 0 held (known, or the tracks undistorted)
   double loss_sigmas = 3.0;            ///< Huber scale, in robust sds of the start's residuals
   double outlier_sigmas = 3.0;         ///< a track whose RMS residual exceeds this many robust sds is an outlier
-  int max_iterations = 50;             ///< Levenberg-Marquardt iterations per solve
+  int max_iterations = 50;             ///< trust-region (dogleg) iterations per solve
   /// Tracks in the refinement: longest first, a track taken while some frame of its life has
   /// fewer than this many taken tracks on its plane (<= 0: all). Beyond a few dozen well-spread
   /// points per plane and frame the estimate gains little, while the cost grows with the square
