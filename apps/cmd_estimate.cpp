@@ -12,6 +12,7 @@
 #include "cli_common.hpp"
 #include "estimate_cli.hpp"
 #include "track_options.hpp"
+#include "rsfm/clock.hpp"
 #include "rsfm/io/atomic_file.hpp"
 #include "rsfm/report/estimate_report.hpp"
 #include "rsfm/report/patch_report.hpp"
@@ -207,7 +208,6 @@ std::string finishEstimateOptions(EstimateCli* e) {
   return "";
 }
 
-double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
 
 /// camera.yaml: the camera the run ended with (OpenCV FileStorage YAML, docs/outputs.md): the
 /// given calibration, or the refinement's estimate with its sds and what is determined. Empty
@@ -326,6 +326,8 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
   if (r.start.ok) rep.extra["start"] = startJson(r.start);
   rep.extra["plane_finding"] = {{"pair_frame", tracks.first_frame + pf.pair_frame}, {"candidates", cands},
                                 {"manual", !e.est.finder.rois.empty()}};
+  rep.extra["stage_seconds"] = {{"plane_finding", r.seconds.plane_finding}, {"start", r.seconds.start},
+                                {"filter", r.seconds.filter}, {"refinement", r.seconds.refinement}};
 }
 
 PatchRunReport::PatchRunReport(const PatchTracks& tracks, const PatchEstimateResult& pr) {
@@ -338,7 +340,7 @@ PatchRunReport::PatchRunReport(const PatchTracks& tracks, const PatchEstimateRes
 
 /// The pipeline (pipeline/estimate.hpp) + report (+ overlay when `overlay_input` is set). Returns the exit code.
 int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOverlay& overlay, double t_start,
-                      bool write_tracks) {
+                      bool write_tracks, double tracking_seconds) {
   EstimateResult r;
   std::vector<std::string> warnings;
   try {
@@ -355,11 +357,12 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
   if (!res.ok()) return fail(kRuntimeFailure, "the filter stopped at " + res.stopped + " (no outputs written)");
   EstimateRunReport run(tracks, r, e);
   report::EstimateReport& rep = run.rep;
+  if (tracking_seconds >= 0) rep.extra["stage_seconds"]["tracking"] = tracking_seconds;
   nlohmann::json summary;
   report::Figures fig;
   if (int rc = guarded([&] {
         io::AtomicFileSet files;
-        rep.seconds = now() - t_start;
+        rep.seconds = steadySeconds() - t_start;
         vision::OverlayInfo ov;
         if (overlay) {
           ov = overlay(r, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
@@ -424,7 +427,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
   std::string disagreement;
   if (int rc = guarded([&] {
         io::AtomicFileSet files;
-        rep.seconds = now() - t_start;
+        rep.seconds = steadySeconds() - t_start;
         vision::OverlayInfo ov;
         if (overlay) {
           ov = overlay(res, files.temp(std::filesystem::path(e.out) / "overlay.mp4"));
@@ -488,7 +491,7 @@ void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
     op->excludes(ot);
     addEstimateOptions(es, &c->e);
     commands.push_back({es, [c]() -> int {
-      const double t0 = now();
+      const double t0 = steadySeconds();
       if (c->tracks.empty() && c->patches.empty()) return fail(kBadInput, "one of --tracks or --patches is required");
       if (!c->patches.empty()) c->e.model = "patches";
       if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);

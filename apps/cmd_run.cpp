@@ -2,6 +2,7 @@
 // with the overlay video. Part of rsfm-video, the binary that links OpenCV's video I/O.
 #include "cli_common.hpp"
 #include "estimate_cli.hpp"
+#include "rsfm/clock.hpp"
 #include "rsfm/io/atomic_file.hpp"
 #include "rsfm/vision/overlay.hpp"
 #include "track_options.hpp"
@@ -25,7 +26,7 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
     addPatchTrackerOptions(rn, &c->t);
     rn->add_flag("!--no-overlay", c->overlay, "skip overlay.mp4");
     commands.push_back({rn, [c]() -> int {
-      const double t0 = now();
+      const double t0 = steadySeconds();
       if (auto m = finishEstimateOptions(&c->e); !m.empty()) return fail(kBadInput, m);
       if (auto m = finishTrackerOptions(&c->t); !m.empty()) return fail(kBadInput, m);
       io::OutputDir od;
@@ -47,13 +48,14 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
       }
       Tracks tracks;
       if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
+      const double tracking_seconds = steadySeconds() - t0;
       // The tracks are part of the report.
       TrackOverlay overlay;
       if (c->overlay)
         overlay = [&](const EstimateResult& r, const std::filesystem::path& tmp) {
           return vision::writeOverlay(c->input, c->t.range, tracks, r.labels(), r.main(), tmp);
         };
-      return finish(estimateAndReport(tracks, e, overlay, t0, true));
+      return finish(estimateAndReport(tracks, e, overlay, t0, true, tracking_seconds));
     }});
   }
 }

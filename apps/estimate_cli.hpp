@@ -41,8 +41,6 @@ struct EstimateCli {
 void addEstimateOptions(CLI::App* a, EstimateCli* e);
 /// Checks and completes the options; a message when they are inconsistent.
 std::string finishEstimateOptions(EstimateCli* e);
-/// Seconds on a monotonic clock.
-double now();
 
 /// The report of one estimate() run as `rsfm estimate` writes it: the result, the given camera,
 /// summary.json's "start" and "plane_finding". The Python module builds its summary with it too
@@ -69,8 +67,9 @@ using TrackOverlay = std::function<vision::OverlayInfo(const EstimateResult&, co
 using PatchOverlay = std::function<vision::OverlayInfo(const PatchRunResult&, const std::filesystem::path&)>;
 
 /// The pipeline (pipeline/estimate.hpp) + report (+ the overlay when given). Returns the exit code.
+/// `tracking_seconds` (>= 0: `rsfm run`'s tracking) joins summary.json's `stage_seconds`.
 int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOverlay& overlay, double t_start,
-                      bool write_tracks);
+                      bool write_tracks, double tracking_seconds = -1);
 /// The patch pipeline + report (+ the overlay when given). Returns the exit code.
 int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, const PatchOverlay& overlay,
                            double t_start, bool write_patches);

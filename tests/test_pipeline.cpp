@@ -89,7 +89,24 @@ TEST(Pipeline, LibraryCallGivesTheCliNumbers) {
     const EstimateResult lib = estimate(tracks, EstimateOptions{});
     EXPECT_TRUE(lib.start.ok) << lib.start.note;
     EXPECT_TRUE(lib.refined.ok) << lib.refined.message;
-    expectSame(lib, runCli(file, dir / "default", ""));
+    const Cli cli = runCli(file, dir / "default", "");
+    expectSame(lib, cli);
+    // Each stage's wall clock: every stage that ran took time, and together they fit in the
+    // run's seconds (which also hold reading the tracks).
+    EXPECT_GT(lib.seconds.plane_finding, 0.0);
+    EXPECT_GT(lib.seconds.start, 0.0);
+    EXPECT_GT(lib.seconds.filter, 0.0);
+    EXPECT_GT(lib.seconds.refinement, 0.0);
+    EXPECT_GE(lib.seconds.refinement, lib.refined.seconds);
+    ASSERT_TRUE(cli.summary.contains("stage_seconds"));
+    double sum = 0;
+    for (const char* k : {"plane_finding", "start", "filter", "refinement"}) {
+      ASSERT_TRUE(cli.summary["stage_seconds"][k].is_number()) << k;
+      EXPECT_GT(cli.summary["stage_seconds"][k].get<double>(), 0.0) << k;
+      sum += cli.summary["stage_seconds"][k].get<double>();
+    }
+    EXPECT_FALSE(cli.summary["stage_seconds"].contains("tracking"));  // rsfm run's only
+    EXPECT_LE(sum, cli.summary["seconds"].get<double>());
   }
   {
     // Options that change the start-dependent defaults and the filter.

@@ -19,6 +19,14 @@ else
   echo "overlay.mp4: ffprobe missing (apt-get install ffmpeg), codec not checked"
 fi
 grep -q '"codec": "h264"' "$TMP/e/summary.json" || { echo "FAIL summary.json does not record the overlay's codec h264"; exit 1; }
+# rsfm run records each stage's wall clock, tracking included, within the run's seconds.
+/usr/bin/python3 -c '
+import json, sys
+s = json.load(open(sys.argv[1])); st = s["stage_seconds"]; total = s["seconds"]
+keys = ["tracking", "plane_finding", "start", "filter", "refinement"]
+ok = all(st[k] > 0 for k in keys) and sum(st[k] for k in keys) <= total
+print("stage seconds: " + ", ".join(f"{k} {st[k]:.2f}" for k in keys) + f" of {total:.2f} s")
+sys.exit(0 if ok else 1)' "$TMP/e/summary.json" || { echo "FAIL summary.json stage_seconds"; exit 1; }
 # The run's tracks.csv reproduces the run: `rsfm estimate` on it gives the same trajectory and planes.
 "$RSFM" estimate --tracks "$TMP/e/tracks.csv" --out "$TMP/e2" --quiet --no-plots
 cmp -s "$TMP/e/trajectory.tum" "$TMP/e2/trajectory.tum" && cmp -s "$TMP/e/planes.csv" "$TMP/e2/planes.csv" ||

@@ -1,4 +1,5 @@
 #include "rsfm/pipeline/estimate.hpp"
+#include "rsfm/clock.hpp"
 
 #include <fmt/format.h>
 
@@ -54,11 +55,18 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   }
   const Tracks& tracks = *t;
   r.image = tracks.image;
+  double t_stage = steadySeconds();
+  auto stageDone = [&](double* seconds) {
+    const double t = steadySeconds();
+    *seconds = t - t_stage;
+    t_stage = t;
+  };
   {
     vision::PlaneFinderOptions fo = o.finder;
     if (o.filter.model == TrackModel::Plane && fo.rois.empty()) fo.max_planes = 1;  // the dominant plane only
     r.planes = vision::findPlanes(tracks, fo);
   }
+  stageDone(&r.seconds.plane_finding);
   const vision::PlaneFinding& pf = r.planes;
   if (pf.numPlanes() == 0) {
     // Nothing moved at all: every candidate is static, and fewer reference tracks than a plane
@@ -116,8 +124,10 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
       say("start: " + start.note + "; planes start frontal");
     }
   }
+  stageDone(&r.seconds.start);
   r.filter_used = fopt;
   r.online = runTrackFilter(tracks, pf.labels, fopt, progress);
+  stageDone(&r.seconds.filter);
   if (!r.online.ended.empty()) say("warning: " + r.online.ended);
   if (o.refine.enabled && r.online.ok() && fopt.model != TrackModel::Point) {
     // The refinement covers the frames the filter estimated.
@@ -129,6 +139,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
       rt = &covered;
     }
     r.refined = refine(*rt, pf.labels, r.online, fopt, known.refine);
+    stageDone(&r.seconds.refinement);
     if (r.refined.ok) {
       say(fmt::format("refine: focal {:.1f} px, {} in {:.2f} s", r.refined.state.scale_px / r.refined.state.frames.back().beta,
                       r.refined.message, r.refined.seconds));

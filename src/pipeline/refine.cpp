@@ -1,4 +1,5 @@
 #include "rsfm/pipeline/refine.hpp"
+#include "rsfm/clock.hpp"
 #include "rsfm/units.hpp"
 
 #include <fmt/format.h>
@@ -22,7 +23,6 @@ namespace rsfm {
 namespace {
 
 
-double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
 
 /// The batch problem of the labelled tracks: points, their reference positions (from the
 /// filter), the start state.
@@ -64,7 +64,7 @@ std::vector<std::vector<double>> residualsPx(const Problem& p, const PlaneBatchS
 
 RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterResult& online,
                     const TrackFilterOptions& fo, const RefineOptions& ro) {
-  const double t_start = now();
+  const double t_start = steadySeconds();
   RefineResult r;
   r.labels = labels;
   const int F = tracks.numFrames();
@@ -554,7 +554,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
                           r.camera[3], std::sqrt(std::max(0.0, r.cov_camera(3, 3))), res.message, r.iterations, r.tracks,
                           r.observations, r.relabelled, r.sigma_px);
   r.message += fmt::format(", correlation inflation {:.1f}", r.correlation_inflation);
-  r.seconds = now() - t_start;
+  r.seconds = steadySeconds() - t_start;
   return r;
 }
 

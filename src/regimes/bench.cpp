@@ -1,4 +1,5 @@
 #include "rsfm/regimes/bench.hpp"
+#include "rsfm/clock.hpp"
 
 #include <fcntl.h>
 #include <spawn.h>
@@ -58,7 +59,6 @@ constexpr int kBoxWindows = 10, kBoxWindowStep = 2, kBoxWindowFrames = 150;
 constexpr double kNormal95 = 1.7308;
 constexpr double kFocal95 = 1.96;
 
-double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
 
 std::uint64_t fnv1a(const std::string& s) {
   std::uint64_t h = 1469598103934665603ULL;
@@ -87,7 +87,7 @@ int runProcess(const std::vector<std::string>& argv, const fs::path& log, double
   std::vector<char*> args;
   for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
   args.push_back(nullptr);
-  const double t0 = now();
+  const double t0 = steadySeconds();
   pid_t pid = 0;
   const int rc = posix_spawn(&pid, argv[0].c_str(), &fa, nullptr, args.data(), environ);
   posix_spawn_file_actions_destroy(&fa);
@@ -95,7 +95,7 @@ int runProcess(const std::vector<std::string>& argv, const fs::path& log, double
   int status = 0;
   while (waitpid(pid, &status, 0) < 0)
     if (errno != EINTR) throw std::runtime_error("waitpid failed");
-  *seconds = now() - t0;
+  *seconds = steadySeconds() - t0;
   if (WIFEXITED(status)) return WEXITSTATUS(status);
   if (WIFSIGNALED(status)) return 128 + WTERMSIG(status);
   return 255;
@@ -312,7 +312,7 @@ void checkBenchOptions(const BenchOptions& o) {
 
 BenchResult runBench(const BenchOptions& opt, const std::function<void(const std::string&)>& progress) {
   checkBenchOptions(opt);
-  const double t_start = now();
+  const double t_start = steadySeconds();
   BenchResult result;
   std::mutex mu;
   auto say = [&](const std::string& m) {
@@ -381,11 +381,11 @@ BenchResult runBench(const BenchOptions& opt, const std::function<void(const std
         fs::remove_all(tmp, e2);
         fs::create_directories(tmp, e2);
         json extra = {{"regime", reg.name}, {"why", reg.why}, {"axes", reg.axes}, {"suite", suite.source}};
-        const double t0 = now();
+        const double t0 = steadySeconds();
         render::writeSequence(reg.options, tmp, {}, {}, extra.dump());
         fs::remove_all(dir, e2);
         fs::rename(tmp, dir);
-        rendered = fmt::format("rendered in {:.1f} s", now() - t0);
+        rendered = fmt::format("rendered in {:.1f} s", steadySeconds() - t0);
       }
       const fs::path video = fs::exists(dir / "video.mp4") ? dir / "video.mp4" : dir / "video.avi";
       // The truth against tracked corners of the decoded video (render/truth_check.hpp).
@@ -541,7 +541,7 @@ BenchResult runBench(const BenchOptions& opt, const std::function<void(const std
     rows.push_back(row);
   }
   result.rows = std::move(rows);
-  result.seconds = now() - t_start;
+  result.seconds = steadySeconds() - t_start;
   return result;
 }
 

@@ -127,7 +127,14 @@ std::string headline(const nlohmann::json& s) {
     row("patch normals (last frame)", fmt::format("{} within 5&deg; of their median", ln.value("within_5deg", 0)));
   }
   if (s.contains("tracks") && s["tracks"].is_object()) row("tracks", jsonHtml(s["tracks"]));
-  if (isNum(s, "seconds")) row("run time", fmt::format("{:.2f} s", num(s, "seconds")));
+  if (isNum(s, "seconds")) {
+    std::string stages;
+    if (s.contains("stage_seconds") && s["stage_seconds"].is_object())
+      for (const char* k : {"tracking", "plane_finding", "start", "filter", "refinement"})
+        if (isNum(s["stage_seconds"], k))
+          stages += fmt::format("{}{} {:.2f} s", stages.empty() ? " (" : ", ", k, num(s["stage_seconds"], k));
+    row("run time", fmt::format("{:.2f} s{}", num(s, "seconds"), stages.empty() ? "" : stages + ")"));
+  }
   if (s.contains("command")) row("command", "<code>" + esc(s["command"].get<std::string>()) + "</code>");
   return o + "</table>";
 }

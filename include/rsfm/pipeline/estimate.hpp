@@ -55,6 +55,13 @@ struct EstimateResult {
   ImageInfo image;                  ///< the image geometry used (a known principal point)
   TrackFilterResult online;         ///< the recursive filter's per-frame estimates (online.ok(): every frame)
   RefineResult refined;             ///< the refinement (refined.ok: the main result; else the online one stands)
+  /// Wall-clock seconds of each stage (steady clock; summary.json's `stage_seconds`).
+  struct StageSeconds {
+    double plane_finding = 0.0;  ///< vision::findPlanes
+    double start = 0.0;          ///< the homography start (0: not tried)
+    double filter = 0.0;         ///< the recursive filter, every pass
+    double refinement = 0.0;     ///< the bundle adjustment and its uncertainty (0: not run)
+  } seconds;
   /// The main result: the refinement's when it succeeded, else the filter's.
   const TrackFilterResult& main() const { return refined.ok ? refined.state : online; }
   /// Labels after the refinement's relabelling (the plane finder's when it did not run).
