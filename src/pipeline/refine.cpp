@@ -226,6 +226,40 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   std::vector<std::string> why;
   const double fmax = std::max(tracks.image.width, tracks.image.height);
   r.camera_free = wanted;
+  // Holds (in r.camera_free, with the reason in `why`) the components of the camera in `st` that
+  // no camera could have; true when it held any.
+  auto holdImplausible = [&](const PlaneBatchState& st) {
+    bool held = false;
+    if (r.camera_free[0]) {
+      const Eigen::Vector2d off = s * st.camera.head<2>();
+      if (off.cwiseAbs().maxCoeff() > ro.max_principal_offset * fmax) {
+        why.push_back(fmt::format("principal point not determined: the data pull it to ({:.0f}, {:.0f}) px, farther than "
+                                  "{:.0f} % of the image from its centre; held at ({:.1f}, {:.1f})",
+                                  cx + off.x(), cy + off.y(), 100 * ro.max_principal_offset, cx, cy));
+        r.camera_free[0] = r.camera_free[1] = false;
+        held = true;
+      }
+    }
+    if (r.camera_free[2]) {
+      const double k1 = st.camera[2], k2 = st.camera[3], f1 = s / st.beta;
+      double rcorner = 0;  // farthest corner, pinhole units
+      const Eigen::Vector2d c(cx + s * st.camera[0], cy + s * st.camera[1]);
+      for (double x : {-0.5, tracks.image.width - 0.5})
+        for (double y : {-0.5, tracks.image.height - 0.5}) rcorner = std::max(rcorner, std::hypot(x - c.x(), y - c.y()) / f1);
+      if (std::abs(k1) > 1 || std::abs(k2) > 1 || rcorner >= RadialCamera::monotonicRadius(k1, k2)) {
+        why.push_back(fmt::format("distortion not determined: k1 {:.3f}, k2 {:.3f} would fold the image; held at 0", k1, k2));
+        r.camera_free[2] = r.camera_free[3] = false;
+        held = true;
+      }
+    }
+    return held;
+  };
+  // The camera's held components back at the nominal camera (principal point at the tracks',
+  // no distortion).
+  auto resetHeld = [&](PlaneBatchState* st) {
+    for (int c = 0; c < 4; ++c)
+      if (!r.camera_free[c]) st->camera[c] = 0.0;
+  };
   for (int round = 0; round < 2 && std::any_of(r.camera_free.begin(), r.camera_free.end(), [](bool b) { return b; }); ++round) {
     bo.camera_free = r.camera_free;
     p.start = res.state;
@@ -236,29 +270,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       break;
     }
     r.iterations += rc.iterations;
-    bool held = false;
-    if (r.camera_free[0]) {
-      const Eigen::Vector2d off = s * rc.state.camera.head<2>();
-      if (off.cwiseAbs().maxCoeff() > ro.max_principal_offset * fmax) {
-        why.push_back(fmt::format("principal point not determined: the data pull it to ({:.0f}, {:.0f}) px, farther than "
-                                  "{:.0f} % of the image from its centre; held at ({:.1f}, {:.1f})",
-                                  cx + off.x(), cy + off.y(), 100 * ro.max_principal_offset, cx, cy));
-        r.camera_free[0] = r.camera_free[1] = false;
-        held = true;
-      }
-    }
-    if (r.camera_free[2]) {
-      const double k1 = rc.state.camera[2], k2 = rc.state.camera[3], f1 = s / rc.state.beta;
-      double rcorner = 0;  // farthest corner, pinhole units
-      const Eigen::Vector2d c(cx + s * rc.state.camera[0], cy + s * rc.state.camera[1]);
-      for (double x : {-0.5, tracks.image.width - 0.5})
-        for (double y : {-0.5, tracks.image.height - 0.5}) rcorner = std::max(rcorner, std::hypot(x - c.x(), y - c.y()) / f1);
-      if (std::abs(k1) > 1 || std::abs(k2) > 1 || rcorner >= RadialCamera::monotonicRadius(k1, k2)) {
-        why.push_back(fmt::format("distortion not determined: k1 {:.3f}, k2 {:.3f} would fold the image; held at 0", k1, k2));
-        r.camera_free[2] = r.camera_free[3] = false;
-        held = true;
-      }
-    }
+    const bool held = holdImplausible(rc.state);
     if (!held) {
       res = std::move(rc);
       break;
@@ -288,7 +300,25 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     if (r.relabelled > 0) {
       Problem q = build(lab, &res.state, &p.track_of_point);
       PlaneBatchResult res2;
-      if (static_cast<int>(q.track_of_point.size()) >= 5 && solve(q, sigma1, &res2)) {
+      const std::array<bool, 4> free_before = r.camera_free;
+      const std::size_t why_before = why.size();
+      bool solved = static_cast<int>(q.track_of_point.size()) >= 5 && solve(q, sigma1, &res2);
+      for (int round = 0; round < 2 && solved && holdImplausible(res2.state); ++round) {
+        // Without the outliers the data pull the camera where no camera is (box.mp4's windows
+        // 14 and 18: the principal point 195 px below the centre): held, as in stage 2, and
+        // solved again from there with the held components at the nominal camera.
+        r.iterations += res2.iterations;
+        bo.camera_free = r.camera_free;
+        q.start = res2.state;
+        resetHeld(&q.start);
+        solved = solve(q, sigma1, &res2);
+      }
+      if (!solved) {  // the previous solve stands, with its camera
+        r.camera_free = free_before;
+        bo.camera_free = r.camera_free;
+        why.resize(why_before);
+      }
+      if (solved) {
         p = std::move(q);
         res = std::move(res2);
         r.iterations += res.iterations;

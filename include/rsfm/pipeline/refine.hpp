@@ -12,7 +12,8 @@
 // released from there; an implausible camera (the principal point beyond `max_principal_offset`, a
 // distortion that folds the image) is held again and reported not determined; (3) a track whose
 // residual RMS under that model exceeds `outlier_sigmas` robust sds is relabelled an outlier (-1)
-// and the problem solved again without it.
+// and the problem solved again without it; its camera passes the test of stage 2 (a component that
+// fails is held at the nominal camera and the problem solved once more).
 //
 // Uncertainty: the Cramer-Rao bound at the solution (rsfm::planeBatchBound, with its null space),
 // with the noise set to the inlier residuals' actual spread sqrt(sum r^2 / (m - n)), inflated for
