@@ -409,6 +409,7 @@ BenchResult runBench(const BenchOptions& opt, const std::function<void(const std
       }
       const fs::path out = runRsfm(row, {video.string()}, reg.name);
       const fs::path truth = dir / "truth";
+      row.k1_true = reg.options.k1;  // the render's own (cached truths from before it was written lack it)
       if (row.exit_code == 0) {
         scoreEstimate(row, out, &truth);
       } else {
