@@ -15,6 +15,7 @@
 #include "rsfm/io/summary.hpp"
 #include "rsfm/io/tum.hpp"
 #include "rsfm/render/scene_render.hpp"
+#include "rsfm/render/truth_check.hpp"
 
 namespace rsfm::render {
 namespace {
@@ -276,6 +277,45 @@ TEST(BoxRender, SilhouetteEdgeLiesWhereTheTruthProjectsIt) {
   std::printf("silhouette edge: %zu rows, mean offset %.3f px, mean |offset| %.3f px\n", offsets.size(), mean, mean_abs);
   EXPECT_LT(std::abs(mean), 0.1);
   EXPECT_LT(mean_abs, 0.25);
+}
+
+// tracksAgainstTruth: tracks made from the truth itself score zero; the same tracks pushed 0.1 px
+// away from the image centre after their first frame score a median, 95th percentile and mean
+// radial error of 0.1 px; tracks born on a surface boundary or the background are left out.
+TEST(BoxRender, TracksAgainstTruthMeasuresAKnownOffset) {
+  Scene scene(smallOptions());
+  const cv::Mat l0 = scene.labels(0);
+  Tracks exact, pushed;
+  exact.image = pushed.image = ImageInfo::centred(320, 240);
+  exact.frames.resize(20);
+  pushed.frames.resize(20);
+  const Eigen::Vector2d centre(159.5, 119.5);
+  int id = 0;
+  for (int v = 20; v < 220; v += 12)
+    for (int u = 20; u < 300; u += 12, ++id) {
+      const Eigen::Vector2d x0(u + 0.3, v + 0.6);
+      exact.frames[0].push_back({id, x0});
+      pushed.frames[0].push_back({id, x0});
+      for (int k = 1; k < 20; ++k) {
+        const auto t = scene.transfer(x0, 0, k, l0);
+        if (!t) continue;
+        exact.frames[k].push_back({id, *t});
+        const Eigen::Vector2d r = *t - centre;
+        pushed.frames[k].push_back({id, *t + 0.1 * r.normalized()});
+      }
+    }
+  const TracksTruthError e0 = tracksAgainstTruth(scene, exact);
+  const TracksTruthError e1 = tracksAgainstTruth(scene, pushed);
+  std::printf("tracks against truth: %d tracks, %ld observations (of %d candidates); pushed: median %.4f, p95 %.4f, "
+              "radial %+.4f px\n", e1.tracks, e1.observations, id, e1.median_px, e1.p95_px, e1.radial_mean_px);
+  EXPECT_GT(e0.tracks, 50);
+  EXPECT_LT(e0.tracks, id);  // the background and the boundaries are left out
+  EXPECT_EQ(e0.tracks, e1.tracks);
+  EXPECT_LT(e0.median_px, 1e-9);
+  EXPECT_LT(e0.p95_px, 1e-9);
+  EXPECT_NEAR(e1.median_px, 0.1, 1e-9);
+  EXPECT_NEAR(e1.p95_px, 0.1, 1e-9);
+  EXPECT_NEAR(e1.radial_mean_px, 0.1, 1e-9);
 }
 
 TEST(BoxRender, ValidateRejectsBadOptions) {

@@ -28,6 +28,7 @@
 #include "rsfm/report/evaluation.hpp"
 #include "rsfm/io/input_error.hpp"
 #include "rsfm/io/summary.hpp"
+#include "rsfm/io/tracks_io.hpp"
 #include "rsfm/render/regime_suite.hpp"
 #include "rsfm/render/truth_check.hpp"
 
@@ -389,8 +390,8 @@ BenchResult runBench(const BenchOptions& opt, const std::function<void(const std
       }
       const fs::path video = fs::exists(dir / "video.mp4") ? dir / "video.mp4" : dir / "video.avi";
       // The truth against tracked corners of the decoded video (render/truth_check.hpp).
+      render::Scene scene(reg.options);
       {
-        render::Scene scene(reg.options);
         const int a0 = reg.options.still_start, last = reg.options.frames - 1, mid = reg.options.frames / 2;
         const std::vector<std::pair<int, int>> pairs{{a0, std::min(a0 + 1, last)}, {mid, std::min(mid + 1, last)}};
         std::map<int, cv::Mat> grey;
@@ -410,6 +411,18 @@ BenchResult runBench(const BenchOptions& opt, const std::function<void(const std
       const fs::path out = runRsfm(row, {video.string()}, reg.name);
       const fs::path truth = dir / "truth";
       row.k1_true = reg.options.k1;  // the render's own (cached truths from before it was written lack it)
+      // rsfm's own tracks against the truth, over their whole lives.
+      if (std::error_code e3; row.exit_code == 0 && fs::exists(out / "tracks.csv", e3)) {
+        try {
+          const render::TracksTruthError te = render::tracksAgainstTruth(scene, io::readTracks(out / "tracks.csv"));
+          if (te.observations > 0) {
+            row.track_err_median_px = te.median_px;
+            row.track_err_p95_px = te.p95_px;
+            row.track_err_radial_px = te.radial_mean_px;
+          }
+        } catch (const std::exception&) {
+        }
+      }
       if (row.exit_code == 0) {
         scoreEstimate(row, out, &truth);
       } else {
@@ -623,7 +636,7 @@ const char* kCsvHeader =
     "focal_est_px,focal_sd_px,focal_err_pct,focal_in_95,focal_determinable,focal_reported_undetermined,planes_true,planes_found,planes_matched,"
     "worst_normal_err_deg,normals_in_95,structure_determinable,face_angle_err_deg,face_angle_deg,ate_pct,"
     "rpe_trans_pct,rpe_rot_deg,undetermined,reported_undetermined,online_focal_err_pct,online_focal_in_95,"
-    "online_worst_normal_err_deg,online_normals_in_95,k1_true,k1_est";
+    "online_worst_normal_err_deg,online_normals_in_95,k1_true,k1_est,track_err_median_px,track_err_p95_px,track_err_radial_px";
 
 }  // namespace
 
@@ -632,7 +645,7 @@ std::string scoreboardCsv(const BenchResult& res) {
   for (const Row& r : res.rows) {
     const std::string fps =
         r.seconds > 0 && r.kind != "colmap" && r.exit_code == 0 ? fmt::format("{:.1f}", r.frames / r.seconds) : std::string();
-    s += fmt::format("{},{},{},{},{},{},{},{:.2f},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+    s += fmt::format("{},{},{},{},{},{},{},{:.2f},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                      csvField(r.sequence), r.kind, csvField(r.axes), r.frames, r.exit_code, csvField(r.message),
                      r.frames_processed, r.seconds, fps, fmtOpt(r.truth_check_px, "{:.3f}"),
                      fmtOpt(r.focal_true, "{:.1f}"), fmtOpt(r.focal_est, "{:.1f}"), fmtOpt(r.focal_sd, "{:.2f}"),
@@ -643,7 +656,8 @@ std::string scoreboardCsv(const BenchResult& res) {
                      fmtOpt(r.rpe_rot_deg, "{:.3f}"), r.undetermined, r.reported_undetermined,
                      fmtOpt(r.online_focal_err_pct, "{:.2f}"), fmtBool(r.online_focal_in_95),
                      fmtOpt(r.online_worst_normal_err_deg, "{:.2f}"), r.online_normals_in_95, fmtOpt(r.k1_true, "{:.4f}"),
-                     fmtOpt(r.k1_est, "{:.4f}"));
+                     fmtOpt(r.k1_est, "{:.4f}"), fmtOpt(r.track_err_median_px, "{:.3f}"), fmtOpt(r.track_err_p95_px, "{:.3f}"),
+                     fmtOpt(r.track_err_radial_px, "{:+.4f}"));
   }
   // Aggregate rows (docs/regimes.md): shares in the boolean columns, medians / worst in the error columns.
   const Aggregate a = aggregate(res.rows);
@@ -694,16 +708,19 @@ std::string scoreboardMarkdown(const BenchResult& res, const std::string& invoca
   s += fmt::format("| sequences with an undeterminable quantity: marked / no output / confident | {} / {} / {} of {} |\n\n",
                    a.undet_marked, a.undet_none, a.undet_confident, a.undet);
   s += "## Rendered sequences\n\n";
-  s += "| sequence | exit | frames | fps | truth px | focal err % (sd %) | in 95 | planes found/true | worst normal deg | "
-       "normals in 95 | face angle err deg | ATE % | RPE deg | undetermined | message |\n";
-  s += "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  s += "| sequence | exit | frames | fps | truth px | tracks vs truth px (median / p95 / radial) | focal err % (sd %) | in 95 | "
+       "planes found/true | worst normal deg | normals in 95 | face angle err deg | ATE % | RPE deg | undetermined | message |\n";
+  s += "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const Row& r : res.rows) {
     if (r.kind != "rendered") continue;
     const std::string fsd = r.focal_sd && r.focal_true ? fmt::format(" ({:.2f})", 100 * *r.focal_sd / *r.focal_true) : "";
-    s += fmt::format("| {} | {} | {}/{} | {} | {} | {}{}{} | {} | {}/{} | {} | {}/{} | {} | {} | {} | {} | {} |\n", r.sequence,
+    s += fmt::format("| {} | {} | {}/{} | {} | {} | {} | {}{}{} | {} | {}/{} | {} | {}/{} | {} | {} | {} | {} | {} |\n", r.sequence,
                      r.exit_code, r.frames_processed, r.frames,
                      r.seconds > 0 && r.exit_code == 0 ? fmt::format("{:.0f}", r.frames / r.seconds) : "",
                      fmtOpt(r.truth_check_px, "{:.2f}"),
+                     r.track_err_median_px ? fmt::format("{:.3f} / {:.3f} / {:+.4f}", *r.track_err_median_px, *r.track_err_p95_px,
+                                                         *r.track_err_radial_px)
+                                           : std::string(),
                      fmtOpt(r.focal_err_pct, "{:+.2f}"), fsd,
                      r.focal_marked ? " (reported n.d.)" : (r.focal_determinable ? "" : " (n.d.)"), fmtBool(r.focal_in_95),
                      r.planes_found, r.planes_true, fmtOpt(r.worst_normal_err_deg, "{:.2f}"), r.normals_in_95,
@@ -834,7 +851,10 @@ std::string scoreboardJson(const BenchResult& res, const std::string& invocation
                          {"online_worst_normal_err_deg", opt(r.online_worst_normal_err_deg)},
                          {"online_normals_in_95", r.online_normals_in_95},
                          {"k1_true", opt(r.k1_true)},
-                         {"k1_est", opt(r.k1_est)}});
+                         {"k1_est", opt(r.k1_est)},
+                         {"track_err_median_px", opt(r.track_err_median_px)},
+                         {"track_err_p95_px", opt(r.track_err_p95_px)},
+                         {"track_err_radial_px", opt(r.track_err_radial_px)}});
   return j.dump(2) + "\n";
 }
 

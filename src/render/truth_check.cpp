@@ -70,6 +70,53 @@ TruthCheck trackAgainstTruth(const Scene& scene, const cv::Mat& grey_a, const cv
   return summarize(a, b, err, per);
 }
 
+TracksTruthError tracksAgainstTruth(const Scene& scene, const Tracks& tracks) {
+  TracksTruthError out;
+  const auto spans = trackSpans(tracks);
+  std::map<int, cv::Mat> labels;  // by scene frame: the frames where tracks are born
+  std::vector<double> err;
+  double radial = 0;
+  const Eigen::Vector2d centre((tracks.image.width - 1) / 2.0, (tracks.image.height - 1) / 2.0);
+  for (int id = 0; id < static_cast<int>(spans.size()); ++id) {
+    const TrackSpan s = spans[id];
+    if (s.length() < 2) continue;
+    const int a = tracks.first_frame + s.first;
+    auto it = labels.find(a);
+    if (it == labels.end()) it = labels.emplace(a, scene.labels(a)).first;
+    const cv::Mat& la = it->second;
+    const Eigen::Vector2d x0 = tracks.find(s.first, id)->px;
+    // Born well inside one surface: the 5 x 5 neighbourhood has one label, not the background.
+    const int u = static_cast<int>(std::lround(x0.x())), v = static_cast<int>(std::lround(x0.y()));
+    if (u < 2 || v < 2 || u >= la.cols - 2 || v >= la.rows - 2) continue;
+    const uchar l0 = la.at<uchar>(v, u);
+    bool one = l0 != 0 && l0 != 255;
+    for (int dv = -2; dv <= 2 && one; ++dv)
+      for (int du = -2; du <= 2 && one; ++du) one = la.at<uchar>(v + dv, u + du) == l0;
+    if (!one) continue;
+    bool used = false;
+    for (int k = s.first + 1; k <= s.last; ++k) {
+      const TrackPoint* p = tracks.find(k, id);
+      if (!p) continue;
+      const auto truth = scene.transfer(x0, a, tracks.first_frame + k, la);
+      if (!truth) continue;
+      const Eigen::Vector2d d = p->px - *truth;
+      err.push_back(d.norm());
+      const Eigen::Vector2d r = *truth - centre;
+      if (r.norm() > 1e-9) radial += d.dot(r.normalized());
+      used = true;
+    }
+    out.tracks += used;
+  }
+  out.observations = static_cast<long>(err.size());
+  if (!err.empty()) {
+    out.radial_mean_px = radial / static_cast<double>(err.size());
+    std::sort(err.begin(), err.end());
+    out.median_px = err[err.size() / 2];
+    out.p95_px = err[std::min(err.size() - 1, static_cast<std::size_t>(0.95 * static_cast<double>(err.size())))];
+  }
+  return out;
+}
+
 cv::Mat warpThroughTruth(const Scene& scene, const cv::Mat& img_a, int a, int b) {
   const cv::Mat lb = scene.labels(b);
   cv::Mat mx(img_a.size(), CV_32F, cv::Scalar(-1e6)), my(img_a.size(), CV_32F, cv::Scalar(-1e6));

@@ -59,7 +59,11 @@ struct Row {
   std::optional<double> ate_pct;          ///< ATE RMSE, % of the scene size (or of the trajectory's extent)
   std::optional<double> rpe_trans_pct, rpe_rot_deg;
   std::string undetermined;               ///< "-", "marked", "no output", "confident" (docs/regimes.md)
-  std::optional<double> k1_true, k1_est;  ///< COLMAP rows
+  std::optional<double> k1_true, k1_est;  ///< the render's k1 (rendered rows), the reference's (real rows); rsfm's or COLMAP's
+  /// Rendered rows: rsfm's tracks (the run's tracks.csv) against the truth over their whole lives
+  /// (render::tracksAgainstTruth): median and 95th percentile of |track - truth|, and the mean
+  /// radial component of track - truth (> 0: outward), pixels.
+  std::optional<double> track_err_median_px, track_err_p95_px, track_err_radial_px;
 };
 
 struct BenchResult {

@@ -8,11 +8,15 @@
 //    frame b and into frame a warped to b's view through the truth (warpThroughTruth) land at the
 //    same place; the tracker's own errors (its translation model on foreshortened faces) are the
 //    same in both and cancel.
+//  - tracksAgainstTruth: a tracker's whole output (rsfm's tracks.csv) against the truth, each
+//    track carried from its first observation (where it was detected) by Scene::transfer: its
+//    drift and error over its whole life (issue 15: the tracker's speed-ups must not change it).
 // Corners are taken well inside one surface (labels eroded by 13 x 13 px), 12 px from the border.
 #include <opencv2/core.hpp>
 #include <vector>
 
 #include "rsfm/render/scene_render.hpp"
+#include "rsfm/track/tracks.hpp"
 
 namespace rsfm::render {
 
@@ -31,5 +35,19 @@ TruthCheck trackAgainstTruth(const Scene& scene, const cv::Mat& grey_a, const cv
 cv::Mat warpThroughTruth(const Scene& scene, const cv::Mat& img_a, int a, int b);
 
 TruthCheck renderedAgainstWarp(const Scene& scene, int a, int b);
+
+/// |track - truth| over every observation after a track's first, the truth being where the scene
+/// point seen at the track's first observation appears (Scene::transfer). Tracks born within 2 px
+/// of a surface boundary or on the background are left out. Pixels; tracks.first_frame is the
+/// scene's frame of tracks.frames[0].
+struct TracksTruthError {
+  int tracks = 0;              ///< tracks compared
+  long observations = 0;       ///< observations compared
+  double median_px = 0, p95_px = 0;  ///< of |track - truth| (valid when observations > 0)
+  /// Mean component of (track - truth) along the direction from the image centre to the truth:
+  /// > 0 the tracks sit outside the truth (a radial bias looks like distortion or a focal change).
+  double radial_mean_px = 0;
+};
+TracksTruthError tracksAgainstTruth(const Scene& scene, const Tracks& tracks);
 
 }  // namespace rsfm::render
