@@ -3,7 +3,6 @@
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <memory>
 #include <optional>
@@ -207,7 +206,6 @@ std::string finishEstimateOptions(EstimateCli* e) {
   e->pat.homography_start = e->est.homography_start;
   return "";
 }
-
 
 /// camera.yaml: the camera the run ended with (OpenCV FileStorage YAML, docs/outputs.md): the
 /// given calibration, or the refinement's estimate with its sds and what is determined. Empty

@@ -5,7 +5,6 @@
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 
 #include "rsfm/batch/plane_batch.hpp"
@@ -21,8 +20,6 @@
 
 namespace rsfm {
 namespace {
-
-
 
 /// The batch problem of the labelled tracks: points, their reference positions (from the
 /// filter), the start state.
