@@ -419,7 +419,8 @@ BenchResult runBench(const BenchOptions& opt, const std::function<void(const std
             row.track_err_p95_px = te.p95_px;
             row.track_err_radial_px = te.radial_mean_px;
           }
-        } catch (const std::exception&) {
+        } catch (const std::exception& e) {  // a row note, like the other scoring steps' failures
+          row.message += (row.message.empty() ? "" : "; ") + std::string("tracks against the truth: ") + e.what();
         }
       }
       if (row.exit_code == 0) {
