@@ -3,6 +3,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
 #include <cmath>
+#include <vector>
 
 namespace rsfm::vision {
 
@@ -104,22 +105,54 @@ bool AffineTemplate::align(const cv::Mat& img, Eigen::Matrix2d* A, Eigen::Vector
   if (n_ == 0) return false;
   Eigen::Matrix2d a = *A;
   Eigen::Vector2d t = *b;
-  Eigen::VectorXf iw(n_);
+  // The warped patch and its residual live in a per-thread buffer: no allocation per call once
+  // warm (align runs for every live track in every frame).
+  // Both start 16-byte aligned, as an Eigen::VectorXf would, so Eigen's reductions over them
+  // take the same vectorized path (and sum in the same order).
+  const size_t stride = (static_cast<size_t>(n_) + 15) & ~size_t{15};
+  thread_local std::vector<float, Eigen::aligned_allocator<float>> scratch;
+  if (scratch.size() < 2 * stride) scratch.resize(2 * stride);
+  Eigen::Map<Eigen::VectorXf, Eigen::Aligned16> iw(scratch.data(), n_), e(scratch.data() + stride, n_);
   const double wsum = w_.sum();
+  const int r_px = o_.radius;
+  // Inner bound of the sampler's support: bilinear needs x in [0, cols - 1), bicubic [1, cols - 2).
+  const double lo = o_.cubic ? 1.0 : 0.0, hi_x = img.cols - (o_.cubic ? 2.0 : 1.0), hi_y = img.rows - (o_.cubic ? 2.0 : 1.0);
   double r = 1e9;
   for (int it = 0; it < o_.max_iterations; ++it) {
-    for (int k = 0; k < n_; ++k) {
-      const double X = x_(k, 0), Y = x_(k, 1);
-      float v;
-      if (!sampleWith(o_.cubic, img, a(0, 0) * X + a(0, 1) * Y + t.x(), a(1, 0) * X + a(1, 1) * Y + t.y(), &v))
-        return false;
-      iw[k] = v;
+    // The warp's image coordinates are a00 X + a01 Y + t (rounded products, summed); rounding is
+    // monotone, so over the template's grid each coordinate is extreme at a corner: the patch is
+    // inside the sampler's support exactly when its four corners are (the per-pixel test this
+    // replaces gave the same answer).
+    for (const int cy : {-r_px, r_px})
+      for (const int cx : {-r_px, r_px}) {
+        const double X = static_cast<float>(cx), Y = static_cast<float>(cy);
+        const double x = a(0, 0) * X + a(0, 1) * Y + t.x(), y = a(1, 0) * X + a(1, 1) * Y + t.y();
+        if (!(x >= lo && y >= lo && x < hi_x && y < hi_y)) return false;
+      }
+    if (o_.cubic) {
+      for (int k = 0; k < n_; ++k) {
+        const double X = x_(k, 0), Y = x_(k, 1);
+        sampleCubic(img, a(0, 0) * X + a(0, 1) * Y + t.x(), a(1, 0) * X + a(1, 1) * Y + t.y(), &iw[k]);
+      }
+    } else {
+      const double a00 = a(0, 0), a01 = a(0, 1), a10 = a(1, 0), a11 = a(1, 1), tx = t.x(), ty = t.y();
+      const uchar* data = img.data;
+      const size_t step = img.step[0];
+      for (int k = 0; k < n_; ++k) {
+        const double X = x_(k, 0), Y = x_(k, 1);
+        const double x = a00 * X + a01 * Y + tx, y = a10 * X + a11 * Y + ty;
+        const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+        const float ax = static_cast<float>(x - x0), ay = static_cast<float>(y - y0);
+        const float* r0 = reinterpret_cast<const float*>(data + step * static_cast<size_t>(y0)) + x0;
+        const float* r1 = reinterpret_cast<const float*>(data + step * static_cast<size_t>(y0 + 1)) + x0;
+        iw[k] = (1 - ay) * ((1 - ax) * r0[0] + ax * r0[1]) + ay * ((1 - ax) * r1[0] + ax * r1[1]);
+      }
     }
     // Gain/bias: normalize the warped image like the template.
     const float mean = static_cast<float>(w_.dot(iw) / wsum);
     const float var = static_cast<float>(w_.dot((iw.array() - mean).square().matrix()) / wsum);
     if (!(var > 1e-6f)) return false;
-    const Eigen::VectorXf e = (iw.array() - mean) / std::sqrt(var) - t_.array();
+    e = (iw.array() - mean) / std::sqrt(var) - t_.array();
     r = std::sqrt(w_.dot(e.cwiseAbs2()) / wsum);
     const Eigen::Matrix<double, 6, 1> dp = hinv_ * (sdw_.transpose() * e).cast<double>();
     // Inverse composition: W <- W o W(dp)^-1.

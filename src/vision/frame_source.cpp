@@ -131,17 +131,28 @@ bool FrameSource::read(cv::Mat* img) {
   return true;
 }
 
-cv::Mat toGray8(const cv::Mat& frame) {
-  cv::Mat gray;
-  if (frame.channels() == 3) cv::cvtColor(frame, gray, cv::COLOR_BGR2GRAY);
-  else if (frame.channels() == 4) cv::cvtColor(frame, gray, cv::COLOR_BGRA2GRAY);
-  else gray = frame;
+cv::Mat toGray8(const cv::Mat& frame, cv::Mat* buffer) {
+  if (frame.channels() == 1 && frame.depth() == CV_8U) return frame;
+  cv::Mat gray = frame;
+  if (frame.channels() == 3) {
+    cv::cvtColor(frame, *buffer, cv::COLOR_BGR2GRAY);
+    gray = *buffer;
+  } else if (frame.channels() == 4) {
+    cv::cvtColor(frame, *buffer, cv::COLOR_BGRA2GRAY);
+    gray = *buffer;
+  }
   if (gray.depth() != CV_8U) {
     cv::Mat g8;
     gray.convertTo(g8, CV_8U, gray.depth() == CV_16U ? 1.0 / 256.0 : 1.0);
+    *buffer = g8;
     gray = g8;
   }
   return gray;
+}
+
+cv::Mat toGray8(const cv::Mat& frame) {
+  cv::Mat buffer;
+  return toGray8(frame, &buffer);
 }
 
 double forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,

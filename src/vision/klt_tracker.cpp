@@ -136,11 +136,13 @@ int KltTracker::levelsNeeded() const {
 }
 
 void KltTracker::process(const cv::Mat& frame) {
-  const cv::Mat gray = toGray8(frame);
+  const cv::Mat gray = toGray8(frame, &gray_);
   const cv::Size win(o_.window_px, o_.window_px);
   if (o_.anchor) gray.convertTo(cur_float_, CV_32F);
   const int built = std::max(o_.pyramid_levels, o_.max_pyramid_levels);
-  std::vector<cv::Mat> pyr;
+  // Built into the buffers of the pyramid before last (same size every frame): no fresh
+  // allocation, hence no page faults, per frame.
+  std::vector<cv::Mat>& pyr = next_pyr_;
   cv::buildOpticalFlowPyramid(gray, pyr, win, built);
   if (frames_.empty()) {
     size_ = gray.size();
@@ -209,7 +211,7 @@ void KltTracker::process(const cv::Mat& frame) {
       it = findById(cur_, it->first) ? std::next(it) : anchors_.erase(it);
     }
   }
-  prev_pyr_ = std::move(pyr);
+  std::swap(prev_pyr_, next_pyr_);
 }
 
 Tracks KltTracker::tracks(int first_frame) const {

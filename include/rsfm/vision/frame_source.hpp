@@ -53,6 +53,9 @@ class FrameSource {
 
 /// 8-bit single-channel version of a frame (BGR, BGRA, gray; 16-bit scaled by 1/256).
 cv::Mat toGray8(const cv::Mat& frame);
+/// The same, converted into `buffer` (reused when it has the frame's size); returns the grey
+/// image, which is `frame` itself (no copy) when the frame is already 8-bit grey.
+cv::Mat toGray8(const cv::Mat& frame, cv::Mat* buffer);
 
 /// The smallest frame a consumer works in (issue 17: 8x8 images and --window 100001 ended in
 /// OpenCV assertions): `min_side` px on each side; `who` completes "FILE: frames are WxH px;

@@ -72,8 +72,8 @@ class KltTracker {
   /// Pyramid levels for the next step (TrackerOptions::pyramid_levels).
   int levelsNeeded() const;
   TrackerOptions o_;
-  std::vector<cv::Mat> prev_pyr_;
-  cv::Mat prev_gray_;
+  std::vector<cv::Mat> prev_pyr_, next_pyr_;  // the last frame's pyramid; the buffers for the next
+  cv::Mat gray_;                               // the frame in 8-bit grey (buffer reused)
   std::vector<TrackPoint> cur_;
   /// Per live track (cur_'s order): its last frame-to-frame displacement (NaN: none yet).
   std::vector<Eigen::Vector2d> vel_;
