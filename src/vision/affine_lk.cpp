@@ -169,10 +169,11 @@ bool AffineTemplate::align(const cv::Mat& img, Eigen::Matrix2d* A, Eigen::Vector
     const Eigen::Matrix3d Wn = W * Wd.inverse();
     if (!Wn.allFinite()) return false;
     a = Wn.topLeftCorner<2, 2>();
-    t = Wn.topRightCorner<2, 1>();
-    // Step size: how far the template's corners moved.
-    const double R = o_.radius;
-    const double move = (dp.head<4>().cwiseAbs().sum()) * R + dp.tail<2>().norm();
+    const Eigen::Vector2d t_new = Wn.topRightCorner<2, 1>();
+    // Step size: how far the template's corners moved, or its centre.
+    const double move = o_.converge_shape ? dp.head<4>().cwiseAbs().sum() * o_.radius + dp.tail<2>().norm()
+                                          : (t_new - t).norm();
+    t = t_new;
     if (move < o_.epsilon_px) break;
   }
   const double det = a.determinant();
