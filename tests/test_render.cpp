@@ -316,6 +316,21 @@ TEST(BoxRender, TracksAgainstTruthMeasuresAKnownOffset) {
   EXPECT_NEAR(e1.median_px, 0.1, 1e-9);
   EXPECT_NEAR(e1.p95_px, 0.1, 1e-9);
   EXPECT_NEAR(e1.radial_mean_px, 0.1, 1e-9);
+  EXPECT_NEAR(e1.radial_median_px, 0.1, 1e-9);
+  // By age: 19 frames after the first give ages 1-2, 3-9 and 10-19 (the 10-29 bucket).
+  ASSERT_EQ(e1.by_age.size(), 3u);
+  long n = 0;
+  for (const auto& b : e1.by_age) {
+    EXPECT_NEAR(b.median_px, 0.1, 1e-9);
+    EXPECT_NEAR(b.radial_median_px, 0.1, 1e-9);
+    n += b.observations;
+  }
+  EXPECT_EQ(n, e1.observations);
+  EXPECT_EQ(e1.by_age[0].first_age, 1);
+  EXPECT_EQ(e1.by_age[0].last_age, 2);
+  EXPECT_EQ(e1.by_age[2].first_age, 10);
+  EXPECT_EQ(e1.by_age[2].last_age, 29);
+  for (const auto& b : e0.by_age) EXPECT_LT(b.median_px, 1e-9);
 }
 
 TEST(BoxRender, ValidateRejectsBadOptions) {

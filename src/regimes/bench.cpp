@@ -418,6 +418,8 @@ BenchResult runBench(const BenchOptions& opt, const std::function<void(const std
             row.track_err_median_px = te.median_px;
             row.track_err_p95_px = te.p95_px;
             row.track_err_radial_px = te.radial_mean_px;
+            row.track_err_radial_median_px = te.radial_median_px;
+            row.track_err_by_age = te.by_age;
           }
         } catch (const std::exception& e) {  // a row note, like the other scoring steps' failures
           row.message += (row.message.empty() ? "" : "; ") + std::string("tracks against the truth: ") + e.what();
@@ -815,6 +817,17 @@ std::string scoreboardJson(const BenchResult& res, const std::string& invocation
                     {"undeterminable", {{"sequences", a.undet}, {"marked", a.undet_marked}, {"no_output", a.undet_none},
                                         {"confident", a.undet_confident}}}};
   auto opt = [](const std::optional<double>& v) { return v ? nlohmann::ordered_json(*v) : nlohmann::ordered_json(nullptr); };
+  auto byAge = [](const std::vector<render::TracksTruthError::AgeBucket>& v) {
+    nlohmann::ordered_json a = nlohmann::ordered_json::array();
+    for (const auto& b : v)
+      a.push_back({{"first_age", b.first_age},
+                   {"last_age", b.last_age >= 0 ? nlohmann::ordered_json(b.last_age) : nlohmann::ordered_json(nullptr)},
+                   {"observations", b.observations},
+                   {"median_px", b.median_px},
+                   {"p95_px", b.p95_px},
+                   {"radial_median_px", b.radial_median_px}});
+    return a;
+  };
   j["rows"] = nlohmann::ordered_json::array();
   for (const Row& r : res.rows)
     j["rows"].push_back({{"sequence", r.sequence},
@@ -854,7 +867,9 @@ std::string scoreboardJson(const BenchResult& res, const std::string& invocation
                          {"k1_est", opt(r.k1_est)},
                          {"track_err_median_px", opt(r.track_err_median_px)},
                          {"track_err_p95_px", opt(r.track_err_p95_px)},
-                         {"track_err_radial_px", opt(r.track_err_radial_px)}});
+                         {"track_err_radial_px", opt(r.track_err_radial_px)},
+                         {"track_err_radial_median_px", opt(r.track_err_radial_median_px)},
+                         {"track_err_by_age", byAge(r.track_err_by_age)}});
   return j.dump(2) + "\n";
 }
 

@@ -1,7 +1,9 @@
 #include "rsfm/render/truth_check.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
@@ -74,7 +76,10 @@ TracksTruthError tracksAgainstTruth(const Scene& scene, const Tracks& tracks) {
   TracksTruthError out;
   const auto spans = trackSpans(tracks);
   std::map<int, cv::Mat> labels;  // by scene frame: the frames where tracks are born
-  std::vector<double> err;
+  // Age buckets: [kAgeEdges[b], kAgeEdges[b + 1] - 1].
+  constexpr std::array<int, 7> kAgeEdges{1, 3, 10, 30, 60, 100, std::numeric_limits<int>::max()};
+  constexpr int kBuckets = static_cast<int>(kAgeEdges.size()) - 1;
+  std::array<std::vector<double>, kBuckets> err, rad;  // |track - truth| and its radial component, by age
   double radial = 0;
   const Eigen::Vector2d centre((tracks.image.width - 1) / 2.0, (tracks.image.height - 1) / 2.0);
   for (int id = 0; id < static_cast<int>(spans.size()); ++id) {
@@ -100,19 +105,42 @@ TracksTruthError tracksAgainstTruth(const Scene& scene, const Tracks& tracks) {
       const auto truth = scene.transfer(x0, a, tracks.first_frame + k, la);
       if (!truth) continue;
       const Eigen::Vector2d d = p->px - *truth;
-      err.push_back(d.norm());
       const Eigen::Vector2d r = *truth - centre;
-      if (r.norm() > 1e-9) radial += d.dot(r.normalized());
+      const double dr = r.norm() > 1e-9 ? d.dot(r.normalized()) : 0.0;
+      int b = 0;
+      while (k - s.first >= kAgeEdges[b + 1]) ++b;
+      err[b].push_back(d.norm());
+      rad[b].push_back(dr);
+      radial += dr;
       used = true;
     }
     out.tracks += used;
   }
-  out.observations = static_cast<long>(err.size());
-  if (!err.empty()) {
-    out.radial_mean_px = radial / static_cast<double>(err.size());
-    std::sort(err.begin(), err.end());
-    out.median_px = err[err.size() / 2];
-    out.p95_px = err[std::min(err.size() - 1, static_cast<std::size_t>(0.95 * static_cast<double>(err.size())))];
+  auto quantile = [](std::vector<double>& v, double q) {
+    const auto i = std::min(v.size() - 1, static_cast<std::size_t>(q * static_cast<double>(v.size())));
+    std::nth_element(v.begin(), v.begin() + static_cast<long>(i), v.end());
+    return v[i];
+  };
+  std::vector<double> all, all_rad;
+  for (int b = 0; b < kBuckets; ++b) {
+    if (err[b].empty()) continue;
+    all.insert(all.end(), err[b].begin(), err[b].end());
+    all_rad.insert(all_rad.end(), rad[b].begin(), rad[b].end());
+    TracksTruthError::AgeBucket ab;
+    ab.first_age = kAgeEdges[b];
+    ab.last_age = kAgeEdges[b + 1] == std::numeric_limits<int>::max() ? -1 : kAgeEdges[b + 1] - 1;
+    ab.observations = static_cast<long>(err[b].size());
+    ab.median_px = quantile(err[b], 0.5);
+    ab.p95_px = quantile(err[b], 0.95);
+    ab.radial_median_px = quantile(rad[b], 0.5);
+    out.by_age.push_back(ab);
+  }
+  out.observations = static_cast<long>(all.size());
+  if (!all.empty()) {
+    out.radial_mean_px = radial / static_cast<double>(all.size());
+    out.radial_median_px = quantile(all_rad, 0.5);
+    out.median_px = quantile(all, 0.5);
+    out.p95_px = quantile(all, 0.95);
   }
   return out;
 }

@@ -14,6 +14,8 @@
 #include <string>
 #include <vector>
 
+#include "rsfm/render/truth_check.hpp"
+
 namespace rsfm::regimes {
 
 struct BenchOptions {
@@ -64,6 +66,10 @@ struct Row {
   /// (render::tracksAgainstTruth): median and 95th percentile of |track - truth|, and the mean
   /// radial component of track - truth (> 0: outward), pixels.
   std::optional<double> track_err_median_px, track_err_p95_px, track_err_radial_px;
+  /// scoreboard.json only: the radial component's median (the bulk's bias; the mean above mixes
+  /// it with the tails) and the error by track age (render::TracksTruthError::by_age).
+  std::optional<double> track_err_radial_median_px;
+  std::vector<render::TracksTruthError::AgeBucket> track_err_by_age;
 };
 
 struct BenchResult {

@@ -47,6 +47,17 @@ struct TracksTruthError {
   /// Mean component of (track - truth) along the direction from the image centre to the truth:
   /// > 0 the tracks sit outside the truth (a radial bias looks like distortion or a focal change).
   double radial_mean_px = 0;
+  /// Median of that radial component: the bulk's bias, which the mean mixes with the tails
+  /// (slips of a pixel or more drag the mean where the median stays near 0).
+  double radial_median_px = 0;
+  /// The same by track age (frames since the track's first observation), ages [first_age,
+  /// last_age]: the anchored tracker's error grows as the template ages (docs/regimes.md).
+  struct AgeBucket {
+    int first_age = 0, last_age = 0;  ///< last_age -1: no upper limit
+    long observations = 0;
+    double median_px = 0, p95_px = 0, radial_median_px = 0;
+  };
+  std::vector<AgeBucket> by_age;  ///< ages 1-2, 3-9, 10-29, 30-59, 60-99, 100+ (buckets with observations)
 };
 TracksTruthError tracksAgainstTruth(const Scene& scene, const Tracks& tracks);
 
