@@ -21,7 +21,12 @@ for _ in range(3):
                    check=True, env=env)
     t = time.monotonic() - t0
     best = t if best is None else min(best, t)
-frames = json.load(open(f"{tmp}/run/summary.json"))["frames"]
+summary = json.load(open(f"{tmp}/run/summary.json"))
+frames = summary["frames"]
 print(f"rsfm run (no overlay, no plots) on box.mp4: {frames} frames in {best:.2f} s "
       f"(best of 3, {'one core' if pin else 'unpinned'}) = {frames / best:.1f} frames/s")
+# The last run's stages (summary.json stage_seconds): this machine's speed varies between runs,
+# the split between stages much less.
+stages = summary.get("stage_seconds", {})
+print("  last run's stages: " + ", ".join(f"{k} {v:.2f} s" for k, v in stages.items()))
 PY
