@@ -31,6 +31,13 @@ bool inside(const cv::Point2f& p, const cv::Mat& img) {
   return p.x > kBorder && p.y > kBorder && p.x < img.cols - kBorder && p.y < img.rows - kBorder;
 }
 
+/// The element at rank floor(q n) (at most n - 1) of a non-empty `v`, which it reorders.
+double quantile(std::vector<double>& v, double q) {
+  const auto i = std::min(v.size() - 1, static_cast<std::size_t>(q * static_cast<double>(v.size())));
+  std::nth_element(v.begin(), v.begin() + static_cast<long>(i), v.end());
+  return v[i];
+}
+
 TruthCheck summarize(int a, int b, std::vector<double> err, const std::map<int, int>& per_surface) {
   TruthCheck t;
   t.a = a;
@@ -38,9 +45,8 @@ TruthCheck summarize(int a, int b, std::vector<double> err, const std::map<int, 
   t.tracks = static_cast<int>(err.size());
   for (const auto& [l, n] : per_surface) t.surfaces += n >= 5;
   if (!err.empty()) {
-    std::sort(err.begin(), err.end());
-    t.median_px = err[err.size() / 2];
-    t.p90_px = err[std::min(err.size() - 1, static_cast<std::size_t>(0.9 * err.size()))];
+    t.median_px = quantile(err, 0.5);
+    t.p90_px = quantile(err, 0.9);
   }
   return t;
 }
@@ -80,7 +86,6 @@ TracksTruthError tracksAgainstTruth(const Scene& scene, const Tracks& tracks) {
   constexpr std::array<int, 7> kAgeEdges{1, 3, 10, 30, 60, 100, std::numeric_limits<int>::max()};
   constexpr int kBuckets = static_cast<int>(kAgeEdges.size()) - 1;
   std::array<std::vector<double>, kBuckets> err, rad;  // |track - truth| and its radial component, by age
-  double radial = 0;
   const Eigen::Vector2d centre((tracks.image.width - 1) / 2.0, (tracks.image.height - 1) / 2.0);
   for (int id = 0; id < static_cast<int>(spans.size()); ++id) {
     const TrackSpan s = spans[id];
@@ -111,16 +116,10 @@ TracksTruthError tracksAgainstTruth(const Scene& scene, const Tracks& tracks) {
       while (k - s.first >= kAgeEdges[b + 1]) ++b;
       err[b].push_back(d.norm());
       rad[b].push_back(dr);
-      radial += dr;
       used = true;
     }
     out.tracks += used;
   }
-  auto quantile = [](std::vector<double>& v, double q) {
-    const auto i = std::min(v.size() - 1, static_cast<std::size_t>(q * static_cast<double>(v.size())));
-    std::nth_element(v.begin(), v.begin() + static_cast<long>(i), v.end());
-    return v[i];
-  };
   std::vector<double> all, all_rad;
   for (int b = 0; b < kBuckets; ++b) {
     if (err[b].empty()) continue;
@@ -137,7 +136,9 @@ TracksTruthError tracksAgainstTruth(const Scene& scene, const Tracks& tracks) {
   }
   out.observations = static_cast<long>(all.size());
   if (!all.empty()) {
-    out.radial_mean_px = radial / static_cast<double>(all.size());
+    double radial = 0;
+    for (double x : all_rad) radial += x;
+    out.radial_mean_px = radial / static_cast<double>(all_rad.size());
     out.radial_median_px = quantile(all_rad, 0.5);
     out.median_px = quantile(all, 0.5);
     out.p95_px = quantile(all, 0.95);

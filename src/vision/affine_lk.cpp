@@ -9,14 +9,19 @@ namespace rsfm::vision {
 
 namespace {
 
-/// Bilinear sample of a CV_32F image; false outside.
-inline bool sample(const cv::Mat& img, double x, double y, float* v) {
-  if (!(x >= 0.0 && y >= 0.0 && x < img.cols - 1 && y < img.rows - 1)) return false;
+/// Bilinear sample of a CV_32F image at (x, y) in [0, cols - 1) x [0, rows - 1) (not checked).
+inline float bilinear(const cv::Mat& img, double x, double y) {
   const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
   const float ax = static_cast<float>(x - x0), ay = static_cast<float>(y - y0);
   const float* r0 = img.ptr<float>(y0) + x0;
   const float* r1 = img.ptr<float>(y0 + 1) + x0;
-  *v = (1 - ay) * ((1 - ax) * r0[0] + ax * r0[1]) + ay * ((1 - ax) * r1[0] + ax * r1[1]);
+  return (1 - ay) * ((1 - ax) * r0[0] + ax * r0[1]) + ay * ((1 - ax) * r1[0] + ax * r1[1]);
+}
+
+/// Bilinear sample of a CV_32F image; false outside.
+inline bool sample(const cv::Mat& img, double x, double y, float* v) {
+  if (!(x >= 0.0 && y >= 0.0 && x < img.cols - 1 && y < img.rows - 1)) return false;
+  *v = bilinear(img, x, y);
   return true;
 }
 
@@ -129,24 +134,13 @@ bool AffineTemplate::align(const cv::Mat& img, Eigen::Matrix2d* A, Eigen::Vector
         const double x = a(0, 0) * X + a(0, 1) * Y + t.x(), y = a(1, 0) * X + a(1, 1) * Y + t.y();
         if (!(x >= lo && y >= lo && x < hi_x && y < hi_y)) return false;
       }
-    if (o_.cubic) {
-      for (int k = 0; k < n_; ++k) {
-        const double X = x_(k, 0), Y = x_(k, 1);
-        sampleCubic(img, a(0, 0) * X + a(0, 1) * Y + t.x(), a(1, 0) * X + a(1, 1) * Y + t.y(), &iw[k]);
-      }
-    } else {
-      const double a00 = a(0, 0), a01 = a(0, 1), a10 = a(1, 0), a11 = a(1, 1), tx = t.x(), ty = t.y();
-      const uchar* data = img.data;
-      const size_t step = img.step[0];
-      for (int k = 0; k < n_; ++k) {
-        const double X = x_(k, 0), Y = x_(k, 1);
-        const double x = a00 * X + a01 * Y + tx, y = a10 * X + a11 * Y + ty;
-        const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
-        const float ax = static_cast<float>(x - x0), ay = static_cast<float>(y - y0);
-        const float* r0 = reinterpret_cast<const float*>(data + step * static_cast<size_t>(y0)) + x0;
-        const float* r1 = reinterpret_cast<const float*>(data + step * static_cast<size_t>(y0 + 1)) + x0;
-        iw[k] = (1 - ay) * ((1 - ax) * r0[0] + ax * r0[1]) + ay * ((1 - ax) * r1[0] + ax * r1[1]);
-      }
+    for (int k = 0; k < n_; ++k) {
+      const double X = x_(k, 0), Y = x_(k, 1);
+      const double x = a(0, 0) * X + a(0, 1) * Y + t.x(), y = a(1, 0) * X + a(1, 1) * Y + t.y();
+      if (o_.cubic)
+        sampleCubic(img, x, y, &iw[k]);  // inside (the corners' test above)
+      else
+        iw[k] = bilinear(img, x, y);
     }
     // Gain/bias: normalize the warped image like the template.
     const float mean = static_cast<float>(w_.dot(iw) / wsum);
