@@ -29,9 +29,36 @@ namespace rsfm::cli {
 
 namespace {
 
-/// summary.json's `start` of a successful homography start (docs/outputs.md).
+/// summary.json's `start`: the hypotheses considered, their scores and the one used (docs/outputs.md).
 nlohmann::json startJson(const vision::PlaneStart& start) {
-  return {{"focal_px", start.focal_px}, {"disagreement_deg", start.score}, {"focal_at_grid_end", start.at_grid_end}};
+  auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); };
+  nlohmann::json hyps = nlohmann::json::array();
+  for (const auto& h : start.hypotheses) {
+    nlohmann::json normals = nlohmann::json::array();
+    for (const auto& n : h.normals) normals.push_back({n.x(), n.y(), n.z()});
+    nlohmann::json j = {{"kind", h.frontal ? "frontal" : "decomposition"},
+                        {"focal_px", h.frontal ? nlohmann::json(nullptr) : nlohmann::json(h.focal_px)},
+                        {"normals", normals},
+                        {"disagreement_deg", num(h.disagreement_deg)},
+                        {"score", num(h.score)}};
+    if (!h.frontal) {
+      j["focal_minimum"] = h.focal_minimum;
+      j["branch"] = h.branch;
+      j["focal_at_grid_end"] = h.at_grid_end;
+    }
+    if (!h.stopped.empty()) j["stopped"] = h.stopped;
+    hyps.push_back(j);
+  }
+  const vision::StartHypothesis& c = start.hypotheses.at(start.chosen);
+  nlohmann::json j = {{"chosen", start.chosen},
+                      {"frontal", c.frontal},
+                      {"focal_px", c.frontal ? nlohmann::json(nullptr) : nlohmann::json(c.focal_px)},
+                      {"disagreement_deg", num(c.disagreement_deg)},
+                      {"focal_at_grid_end", !c.frontal && c.at_grid_end},
+                      {"hypotheses", hyps}};
+  if (start.scored_from >= 0) j["scored_frames"] = {start.scored_from, start.scored_to};
+  if (!start.note.empty()) j["note"] = start.note;
+  return j;
 }
 
 }  // namespace
@@ -321,7 +348,7 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
   for (const auto& c : pf.candidates)
     cands.push_back({{"verdict", vision::toString(c.verdict)}, {"label", c.label}, {"tracks", c.members.size()},
                      {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction}});
-  if (r.start.ok) rep.extra["start"] = startJson(r.start);
+  if (!r.start.hypotheses.empty()) rep.extra["start"] = startJson(r.start);
   rep.extra["plane_finding"] = {{"pair_frame", tracks.first_frame + pf.pair_frame}, {"candidates", cands},
                                 {"manual", !e.est.finder.rois.empty()}};
   rep.extra["stage_seconds"] = {{"plane_finding", r.seconds.plane_finding}, {"start", r.seconds.start},
@@ -333,7 +360,7 @@ PatchRunReport::PatchRunReport(const PatchTracks& tracks, const PatchEstimateRes
   rep.result = &pr.run;
   rep.motion = &pr.motion;
   rep.command = invocation();
-  if (pr.start.ok) rep.extra["start"] = startJson(pr.start);
+  if (!pr.start.hypotheses.empty()) rep.extra["start"] = startJson(pr.start);
 }
 
 /// The pipeline (pipeline/estimate.hpp) + report (+ overlay when `overlay_input` is set). Returns the exit code.

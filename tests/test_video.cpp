@@ -2,6 +2,7 @@
 // plane finding, transfer of new tracks, and the whole estimate on synthetic pixel tracks.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -14,9 +15,11 @@
 #include "rsfm/io/patches_io.hpp"
 #include "rsfm/io/tracks_io.hpp"
 #include "rsfm/models/plane_model.hpp"
+#include "rsfm/pipeline/estimate.hpp"
 #include "rsfm/pipeline/track_filter.hpp"
 #include "rsfm/rotation.hpp"
 #include "rsfm/sim/box_scene.hpp"
+#include "rsfm/sim/table1_scene.hpp"
 #include "rsfm/vision/affine_lk.hpp"
 #include "rsfm/vision/patch_tracker.hpp"
 #include "rsfm/vision/frame_source.hpp"
@@ -287,10 +290,87 @@ TEST(PlaneStart, AStillStartDoesNotHideTheFocalLength) {
   ASSERT_TRUE(start.ok) << start.note;
   EXPECT_FALSE(start.at_grid_end);
   EXPECT_NEAR(start.focal_px, 256.0, 0.1 * 256.0) << "pair frame " << pf.pair_frame;
-  // A start whose decompositions disagree by more than the limit is refused, with the reason.
-  const vision::PlaneStart strict = vision::planeStart(t, pf, 0.0, 0.5 * start.score / (pf.numPlanes() * pf.numPlanes()));
-  EXPECT_FALSE(strict.ok);
-  EXPECT_NE(strict.note.find("disagree"), std::string::npos) << strict.note;
+  // Hypotheses, not one answer: the lowest disagreement first (the fields above), the frontal
+  // start last, every decomposition with unit normals.
+  ASSERT_GE(start.hypotheses.size(), 2u);
+  EXPECT_EQ(start.hypotheses.front().focal_px, start.focal_px);
+  EXPECT_EQ(start.hypotheses.front().disagreement_deg, start.score);
+  EXPECT_TRUE(start.hypotheses.back().frontal);
+  for (const auto& h : start.hypotheses)
+    for (const auto& n : h.normals) EXPECT_NEAR(n.norm(), 1.0, 1e-9);
+}
+
+TEST(PlaneStart, TheDataChooseTheStartNotTheOrder) {
+  // Issue 14 item 3: the starts are hypotheses - each local minimum of the focal search and each
+  // decomposition with the plane in front (the planar two-fold ambiguity, [AS99] §3.1), beside
+  // the frontal start - and a bank of filters scores them (rsfm::scoreStartHypotheses). Put in
+  // reverse order (the frontal and the worst first), the chosen start is still a right one and
+  // every wrong one scores worse: the choice is the data's, not the order's. Scene: Table 1's
+  // plane ([AS99] §4; 30 deg off-axis, 50 deg of orbit) with 60 points and 0.5 px noise, and the
+  // box scene's dominant face. "Right": within 5 deg of the true normal (a start on a 49-step
+  // focal grid from two homographies). Measured: the wrong hypothesis is the second focal
+  // minimum (1536 px, 42 and 36 deg off; scores 7.6 and 3.6 against 1.9 for the right start and
+  // 2.0 for the frontal one); the second decomposition is behind the camera for some points in
+  // both scenes (90 deg field of view), so only one branch is in front.
+  for (int scene = 0; scene < 2; ++scene) {
+    SCOPED_TRACE(scene == 0 ? "Table 1 plane" : "box face");
+    Tracks tracks;
+    Eigen::Vector3d truth;
+    std::vector<int> labels;
+    vision::PlaneFinding pf;
+    if (scene != 1) {
+      std::mt19937_64 rng(21);
+      Table1SceneOptions so;
+      so.points = 60;
+      const Table1Scene sc = makeTable1Scene(so, rng);
+      const double s = so.scale_px, c = (so.image_px - 1) / 2.0;
+      tracks.image = {static_cast<int>(so.image_px), static_cast<int>(so.image_px), c, c};
+      std::normal_distribution<double> g(0.0, 0.5);
+      for (const auto& f : sc.uv) {
+        std::vector<TrackPoint> pts;
+        for (size_t i = 0; i < f.size(); ++i)
+          pts.push_back({static_cast<int>(i), f[i] * s + Eigen::Vector2d(c + g(rng), c + g(rng))});
+        tracks.frames.push_back(std::move(pts));
+      }
+      truth = sc.unitNormal();
+    } else {
+      const SyntheticTracks st = boxTracks(0.5, 0, 0, 9);
+      tracks = st.tracks;
+      vision::PlaneFinderOptions fo;
+      fo.max_planes = 1;
+      pf = vision::findPlanes(tracks, fo);
+      std::vector<int> votes(st.scene.faces(), 0);
+      for (size_t id = 0; id < pf.labels.size(); ++id)
+        if (pf.labels[id] == 0 && st.face[id] >= 0) ++votes[st.face[id]];
+      truth = st.scene.planes[std::max_element(votes.begin(), votes.end()) - votes.begin()].normalized();
+    }
+    if (scene != 1) {
+      vision::PlaneFinderOptions fo;
+      fo.max_planes = 1;
+      pf = vision::findPlanes(tracks, fo);
+    }
+    ASSERT_EQ(pf.numPlanes(), 1);
+    auto angle = [&](const Eigen::Vector3d& n) { return std::acos(std::min(1.0, std::abs(n.dot(truth)))) * 180.0 / M_PI; };
+    vision::PlaneStart start = vision::planeStart(tracks, pf);
+    ASSERT_TRUE(start.ok) << start.note;
+    std::reverse(start.hypotheses.begin(), start.hypotheses.end());
+    TrackFilterOptions o;
+    o.model = TrackModel::Plane;
+    o.sigma_px = 0.5;
+    scoreStartHypotheses(tracks, pf.labels, o, 1, &start);
+    const vision::StartHypothesis& c = start.hypotheses[start.chosen];
+    ASSERT_TRUE(std::isfinite(c.score)) << c.stopped;
+    int wrong = 0;
+    for (const auto& h : start.hypotheses)
+      if (!h.frontal && angle(h.normals[0]) > 5.0) {
+        ++wrong;
+        EXPECT_GT(h.score, c.score) << "a wrong start (" << angle(h.normals[0]) << " deg off) explains the tracks better";
+      }
+    EXPECT_GE(wrong, 1) << "a wrong hypothesis to choose against";
+    EXPECT_TRUE(c.frontal || angle(c.normals[0]) < 5.0) << "chosen normal " << angle(c.normals[0]) << " deg off";
+    EXPECT_GE(start.scored_from, 1);
+    EXPECT_EQ(start.scored_to, tracks.first_frame + tracks.numFrames() - 1);
+  }
 }
 
 TEST(TrackFilter, RecoversFocalAndFaceAnglesFromPixelTracks) {

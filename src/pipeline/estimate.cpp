@@ -1,10 +1,12 @@
 #include "rsfm/pipeline/estimate.hpp"
+#include "rsfm/chi2.hpp"
 #include "rsfm/clock.hpp"
 
 #include <fmt/format.h>
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace rsfm {
 
@@ -16,7 +18,64 @@ namespace {
 std::string rf_message(const EstimateResult& er) {
   return er.refined.message.empty() ? std::string("no message") : er.refined.message.substr(0, er.refined.message.find(';'));
 }
+
 }  // namespace
+
+// Documented in pipeline/estimate.hpp.
+TrackFilterOptions startOptions(const TrackFilterOptions& base, const vision::StartHypothesis& h, int m) {
+  TrackFilterOptions o = base;
+  if (h.frontal) return o;
+  if (o.focal_px <= 0 && o.focal0_px <= 0) o.focal0_px = h.focal_px;
+  if (!o.normal_sd0) o.normal_sd0 = 0.1;
+  if (!o.beta_sd0) o.beta_sd0 = 0.1;
+  o.initial_normals.assign(h.normals.begin(), h.normals.begin() + m);
+  o.initial_distance_ratios.assign(h.distance_ratios.begin(), h.distance_ratios.begin() + m);
+  return o;
+}
+
+// Issue 14 item 3; documented in pipeline/estimate.hpp.
+void scoreStartHypotheses(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterOptions& base, int m,
+                          vision::PlaneStart* start) {
+  const double cap = chi2Quantile(base.filter.update.gate_probability, 2.0);
+  double best = std::numeric_limits<double>::infinity();
+  start->chosen = 0;
+  for (size_t i = 0; i < start->hypotheses.size(); ++i) {
+    vision::StartHypothesis& h = start->hypotheses[i];
+    TrackFilterOptions o = startOptions(base, h, m);
+    o.passes = 1;
+    h.score = std::numeric_limits<double>::infinity();
+    TrackFilterResult run;
+    try {
+      run = runTrackFilter(tracks, labels, o);
+    } catch (const std::invalid_argument& e) {
+      h.stopped = e.what();
+      continue;
+    }
+    if (!run.ok()) {
+      h.stopped = run.stopped;
+      continue;
+    }
+    const int n = static_cast<int>(run.frames.size());
+    const int from = std::max(1, n / 2);
+    double sum = 0.0;
+    long offered = 0;
+    for (int k = from; k < n; ++k) {
+      const TrackFrame& f = run.frames[k];
+      sum += f.nis_per_dof * 2.0 * f.used + cap * (f.observed - f.used);
+      offered += f.observed;
+    }
+    if (offered == 0) continue;
+    h.score = sum / offered;
+    if (start->scored_from < 0 && n > from) {
+      start->scored_from = run.frames[from].frame;
+      start->scored_to = run.frames.back().frame;
+    }
+    if (h.score < best) {
+      best = h.score;
+      start->chosen = static_cast<int>(i);
+    }
+  }
+}
 
 EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
                         const std::function<void(const std::string&)>& note,
@@ -107,21 +166,37 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   if (o.homography_start && fopt.model != TrackModel::Point) {
     r.start_tried = true;
     r.start = vision::planeStart(tracks, pf, fopt.focal_px);
-    const vision::PlaneStart& start = r.start;
-    if (start.ok) {
-      if (fopt.focal_px <= 0 && fopt.focal0_px <= 0) fopt.focal0_px = start.focal_px;
-      if (!fopt.normal_sd0) fopt.normal_sd0 = 0.1;
-      if (!fopt.beta_sd0) fopt.beta_sd0 = 0.1;
-      const int m = fopt.model == TrackModel::Plane ? 1 : static_cast<int>(start.normals.size());
-      fopt.initial_normals.assign(start.normals.begin(), start.normals.begin() + m);
-      fopt.initial_distance_ratios.assign(start.distance_ratios.begin(), start.distance_ratios.begin() + m);
-      std::string line = fmt::format("start: focal {:.0f} px from the homographies (disagreement {:.2f} deg), normals",
-                                     start.focal_px, start.score);
-      for (const auto& n : start.normals) line += fmt::format(" ({:.2f}, {:.2f}, {:.2f})", n.x(), n.y(), n.z());
+    vision::PlaneStart& start = r.start;
+    const int m = fopt.model == TrackModel::Plane ? 1 : pf.numPlanes();
+    if (!start.ok) say("start: " + start.note + "; planes start frontal");
+    else if (start.hypotheses.size() > 1)
+      scoreStartHypotheses(tracks, pf.labels, fopt, m, &start);
+    const vision::StartHypothesis& h = start.hypotheses[start.chosen];
+    fopt = startOptions(fopt, h, m);
+    if (!h.frontal) {
+      start.focal_px = h.focal_px;
+      start.normals = h.normals;
+      start.distance_ratios = h.distance_ratios;
+    }
+    if (start.hypotheses.size() > 1) {
+      std::string line = fmt::format("start: {} hypotheses scored on frames {}-{} (chi-square per observation):", start.hypotheses.size(),
+                                     start.scored_from, start.scored_to);
+      for (size_t i = 0; i < start.hypotheses.size(); ++i) {
+        const vision::StartHypothesis& c = start.hypotheses[i];
+        line += c.frontal ? " [frontal" : fmt::format(" [{:.0f} px branch {} disagreement {:.1f} deg", c.focal_px, c.branch, c.disagreement_deg);
+        line += std::isfinite(c.score) ? fmt::format(": {:.3f}", c.score) : std::string(": stopped");
+        line += static_cast<int>(i) == start.chosen ? ", chosen]" : "]";
+      }
       say(line);
-      if (start.at_grid_end) say(std::string("warning: ") + kFocalGridEndWarning);
+    }
+    if (h.frontal) {
+      say("start: every plane frontal at the focal guess (the best-scored start)");
     } else {
-      say("start: " + start.note + "; planes start frontal");
+      std::string line = fmt::format("start: focal {:.0f} px from the homographies (disagreement {:.2f} deg), normals",
+                                     h.focal_px, h.disagreement_deg);
+      for (const auto& n : h.normals) line += fmt::format(" ({:.2f}, {:.2f}, {:.2f})", n.x(), n.y(), n.z());
+      say(line);
+      if (h.at_grid_end) say(std::string("warning: ") + kFocalGridEndWarning);
     }
   }
   stageDone(&r.seconds.start);

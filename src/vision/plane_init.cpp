@@ -4,7 +4,6 @@
 #include <cmath>
 #include <limits>
 #include <functional>
-#include <fmt/format.h>
 #include <opencv2/calib3d.hpp>
 
 namespace rsfm::vision {
@@ -72,15 +71,20 @@ int halfMotionFrame(const Tracks& tracks, const FoundPlane& plane, int k2) {
 
 }  // namespace
 
-PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal_px, double max_mean_disagreement_deg) {
+PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal_px, int max_focal_minima) {
   PlaneStart out;
   std::vector<const FoundPlane*> planes;
   for (const auto& c : pf.candidates)
     if (c.verdict == PlaneVerdict::Accepted && c.label >= 0) planes.push_back(&c);
   std::sort(planes.begin(), planes.end(), [](auto* a, auto* b) { return a->label < b->label; });
   const int m = static_cast<int>(planes.size());
+  StartHypothesis frontal;
+  frontal.frontal = true;
+  frontal.normals.assign(std::max(m, 1), Eigen::Vector3d::UnitZ());
+  frontal.distance_ratios.assign(std::max(m, 1), 1.0);
   if (m == 0 || pf.pair_frame < 2) {
     out.note = "no plane or no motion to decompose";
+    out.hypotheses.push_back(frontal);
     return out;
   }
   const int k2 = pf.pair_frame;
@@ -90,8 +94,15 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
   if (focal_px > 0) grid.push_back(focal_px);
   else
     for (int i = 0; i <= 48; ++i) grid.push_back(W * 0.3 * std::pow(10.0, i / 48.0));  // 0.3 W .. 3 W
-  double best = std::numeric_limits<double>::infinity();
-  size_t best_index = 0;
+  // Per grid focal length and per decomposition of plane 0 at the pair frame (the branch): the
+  // best joint choice of the other solutions and its disagreement.
+  struct Branch {
+    double cost = std::numeric_limits<double>::infinity();
+    std::vector<Eigen::Vector3d> normals;
+    std::vector<double> ratios;
+  };
+  std::vector<std::vector<Branch>> at(grid.size());
+  std::vector<double> best_cost(grid.size(), std::numeric_limits<double>::infinity());
   for (size_t gi = 0; gi < grid.size(); ++gi) {
     const double f = grid[gi];
     const cv::Matx33d K(f, 0, tracks.image.cx, 0, f, tracks.image.cy, 0, 0, 1);
@@ -110,10 +121,11 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
       }
     }
     if (!ok) continue;
-    // Joint choice of one solution per plane at each frame (at most 4^(2m) combinations).
+    // Joint choice of one solution per plane at each frame (at most 4^(2m) combinations), the
+    // best one for each choice of plane 0's solution at the pair frame.
+    std::vector<Branch>& br = at[gi];
+    br.resize(s2[0].size());
     std::vector<int> c1(m, 0), c2(m, 0);
-    std::vector<int> bc1, bc2;
-    double bcost = std::numeric_limits<double>::infinity();
     std::function<void(int)> rec = [&](int level) {
       if (level == 2 * m) {
         double cost = 0.0;
@@ -122,7 +134,19 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
           for (int b = a + 1; b < m; ++b)
             cost += rotAngleDeg(s1[a][c1[a]].R, s1[b][c1[b]].R) + rotAngleDeg(s2[a][c2[a]].R, s2[b][c2[b]].R);
         }
-        if (cost < bcost) bcost = cost, bc1 = c1, bc2 = c2;
+        Branch& b = br[c2[0]];
+        if (cost < b.cost) {
+          b.cost = cost;
+          b.normals.assign(m, Eigen::Vector3d::UnitZ());
+          b.ratios.assign(m, 1.0);
+          const double t0 = cv::norm(s2[0][c2[0]].t);
+          for (int j = 0; j < m; ++j) {
+            const cv::Vec3d n = s2[j][c2[j]].n;
+            b.normals[j] = Eigen::Vector3d(n[0], n[1], n[2]).normalized();
+            const double tj = cv::norm(s2[j][c2[j]].t);
+            b.ratios[j] = (t0 > 1e-9 && tj > 1e-9) ? t0 / tj : 1.0;
+          }
+        }
         return;
       }
       const int j = level % m;
@@ -134,31 +158,51 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
       }
     };
     rec(0);
-    if (bcost < best) {
-      best = bcost;
-      best_index = gi;
-      out.ok = true;
-      out.focal_px = f;
-      out.score = bcost;
-      out.normals.assign(m, Eigen::Vector3d::UnitZ());
-      out.distance_ratios.assign(m, 1.0);
-      const double t0 = cv::norm(s2[0][bc2[0]].t);
-      for (int j = 0; j < m; ++j) {
-        const cv::Vec3d n = s2[j][bc2[j]].n;
-        out.normals[j] = Eigen::Vector3d(n[0], n[1], n[2]).normalized();
-        const double tj = cv::norm(s2[j][bc2[j]].t);
-        out.distance_ratios[j] = (t0 > 1e-9 && tj > 1e-9) ? t0 / tj : 1.0;
-      }
+    std::sort(br.begin(), br.end(), [](const Branch& a, const Branch& b) { return a.cost < b.cost; });
+    while (!br.empty() && !std::isfinite(br.back().cost)) br.pop_back();
+    if (!br.empty()) best_cost[gi] = br.front().cost;
+  }
+  // Local minima of the best disagreement over the grid (an end counts when it is below its
+  // neighbour: no minimum inside, the focal length is then not determined), lowest first.
+  std::vector<size_t> minima;
+  for (size_t gi = 0; gi < grid.size(); ++gi) {
+    if (!std::isfinite(best_cost[gi])) continue;
+    const double left = gi > 0 ? best_cost[gi - 1] : std::numeric_limits<double>::infinity();
+    const double right = gi + 1 < grid.size() ? best_cost[gi + 1] : std::numeric_limits<double>::infinity();
+    if (best_cost[gi] <= right && best_cost[gi] < left) minima.push_back(gi);
+  }
+  std::sort(minima.begin(), minima.end(), [&](size_t a, size_t b) { return best_cost[a] < best_cost[b]; });
+  if (static_cast<int>(minima.size()) > max_focal_minima) minima.resize(std::max(max_focal_minima, 1));
+  for (size_t r = 0; r < minima.size(); ++r) {
+    const size_t gi = minima[r];
+    for (size_t b = 0; b < at[gi].size(); ++b) {
+      StartHypothesis h;
+      h.focal_px = grid[gi];
+      h.normals = at[gi][b].normals;
+      h.distance_ratios = at[gi][b].ratios;
+      h.disagreement_deg = at[gi][b].cost;
+      h.focal_minimum = static_cast<int>(r);
+      h.branch = static_cast<int>(b);
+      h.at_grid_end = grid.size() > 1 && (gi == 0 || gi + 1 == grid.size());
+      out.hypotheses.push_back(std::move(h));
     }
   }
-  if (!out.ok) out.note = "no consistent homography decomposition";
-  out.at_grid_end = out.ok && grid.size() > 1 && (best_index == 0 || best_index + 1 == grid.size());
-  if (out.ok && out.score / (m * m) > max_mean_disagreement_deg) {
-    const double score = out.score, f = out.focal_px;
-    out = PlaneStart{};
-    out.note = fmt::format("the homography decompositions disagree by {:.1f} deg at best ({:.0f} px; {:.1f} per term, "
-                           "more than {:g}): no start", score, f, score / (m * m), max_mean_disagreement_deg);
+  std::stable_sort(out.hypotheses.begin(), out.hypotheses.end(),
+                   [](const StartHypothesis& a, const StartHypothesis& b) { return a.disagreement_deg < b.disagreement_deg; });
+  out.ok = !out.hypotheses.empty();
+  if (out.ok) {
+    const StartHypothesis& h = out.hypotheses.front();
+    out.focal_px = h.focal_px;
+    out.normals = h.normals;
+    out.distance_ratios = h.distance_ratios;
+    out.score = h.disagreement_deg;
+    out.at_grid_end = h.at_grid_end;
+  } else {
+    out.note = "no homography decomposition with the planes in front of the camera";
   }
+  frontal.normals.assign(m, Eigen::Vector3d::UnitZ());
+  frontal.distance_ratios.assign(m, 1.0);
+  out.hypotheses.push_back(frontal);
   return out;
 }
 

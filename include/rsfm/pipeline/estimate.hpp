@@ -68,6 +68,26 @@ struct EstimateResult {
   const std::vector<int>& labels() const { return refined.ok ? refined.labels : planes.labels; }
 };
 
+/// The filter's options for one start hypothesis (vision/plane_init.hpp) of a run of `m` planes:
+/// a decomposition sets the focal guess (unless the focal length is known or guessed in `base`),
+/// the normals, the relative distances and the prior widths after a homography start (0.1,
+/// unless given); the frontal hypothesis leaves `base`'s own guesses (TrackFilterOptions).
+TrackFilterOptions startOptions(const TrackFilterOptions& base, const vision::StartHypothesis& h, int m);
+
+/// Start hypotheses chosen by the data (issue 14 item 3, docs/estimate.md "Start"): a bank of
+/// filters, one per hypothesis (startOptions(), one pass over the sequence each), each scored by
+/// how well it explains the observations - per frame the update's joint innovation chi-square
+/// r^T S^-1 r of the accepted observations (the one-frame MAP cost: misfit to the data plus
+/// distance from the prediction) and the gate's value for every other offered observation (gated,
+/// or its prediction failed: a truncated, robust cost), per offered observation, over the second
+/// half of the frames, when the priors' widths (frontal sd 1, decompositions 0.1) no longer
+/// matter. A start stuck on a wrong branch or focal length keeps a structure no rigid motion
+/// fits. A filter that stops (or throws) scores +inf with the reason in `stopped`. Sets every
+/// hypothesis's score, `start->chosen` (lowest score; ties: the earlier hypothesis) and the
+/// scored frames.
+void scoreStartHypotheses(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterOptions& base, int m,
+                          vision::PlaneStart* start);
+
 /// No plane with enough tracks: bad input a user can act on (options, or another video).
 class NoPlaneFound : public std::invalid_argument {
  public:

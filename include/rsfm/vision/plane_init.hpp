@@ -1,11 +1,16 @@
 #pragma once
-// A start for the plane filters from the plane finder's homographies (docs/estimate.md): for each
-// focal length on a grid, every plane's reference -> frame-k homography is decomposed
-// (cv::decomposeHomographyMat); the focal length whose decompositions agree best - one rotation
-// for all planes (they move rigidly), the same normal at two frames - is kept, with the normals
-// and the relative plane distances (d_j / d_0 from |t / d_j|) of that decomposition.
+// Starts for the plane filters from the plane finder's homographies (docs/estimate.md, "Start"):
+// for each focal length on a grid, every plane's reference -> frame-k homography is decomposed
+// (cv::decomposeHomographyMat); the decompositions are combined, one per plane and frame, to agree
+// best - one rotation for all planes (they move rigidly), the same normal at two frames. The
+// result is a set of *hypotheses*, not one answer (issue 14 item 3): each local minimum of that
+// disagreement over the focal grid, each branch of the planar two-fold ambiguity at it (the
+// two decompositions with the plane in front, [AS99] §3.1), and the frontal start. None is
+// refused by a disagreement threshold; pipeline/estimate.cpp scores them by the data (a bank of
+// filters) and keeps the best.
 #include <Eigen/Core>
 
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -14,27 +19,52 @@
 
 namespace rsfm::vision {
 
+/// One start of the plane filters.
+struct StartHypothesis {
+  /// Every plane fronto-parallel at the filter's default focal guess and wide prior
+  /// (TrackFilterOptions' guess widths): what the filter does without a start.
+  bool frontal = false;
+  double focal_px = 0.0;                 ///< the decomposition's focal length (frontal: 0 = the filter's guess)
+  std::vector<Eigen::Vector3d> normals;  ///< per accepted plane (label order), reference camera frame, unit
+  std::vector<double> distance_ratios;   ///< d_j / d_0
+  /// Disagreement of the decompositions (deg, sum over the m^2 terms: m normal changes between
+  /// the two frames, m(m-1) rotation differences between planes); frontal: NaN.
+  double disagreement_deg = std::numeric_limits<double>::quiet_NaN();
+  int focal_minimum = 0;  ///< rank of its focal-grid minimum (0: the lowest disagreement)
+  int branch = 0;         ///< plane 0's decomposition at the pair frame (0, 1: the two in front)
+  bool at_grid_end = false;  ///< that minimum is at an end of the focal grid (not a minimum: not determined)
+  /// Filled by the scoring (pipeline/estimate.cpp): mean chi-square-truncated innovation per
+  /// observation over the scored frames (lower = the data agree better; +inf: the filter stopped).
+  double score = std::numeric_limits<double>::quiet_NaN();
+  std::string stopped;  ///< why its scoring filter stopped (empty: it ran)
+};
+
 struct PlaneStart {
+  /// At least one decomposition hypothesis exists (false: no plane decomposes in front of the
+  /// camera at any focal length; the note says why and only the frontal start remains).
   bool ok = false;
-  double focal_px = 0.0;                     ///< best focal length on the grid (0 if not ok)
+  /// The hypothesis used: planeStart() sets the lowest-disagreement decomposition; the
+  /// pipeline's scoring may choose another one (also the frontal one).
+  double focal_px = 0.0;                     ///< its focal length (0: frontal at the filter's guess)
   std::vector<Eigen::Vector3d> normals;      ///< per accepted plane (label order), reference camera frame
   std::vector<double> distance_ratios;       ///< d_j / d_0
-  double score = 0.0;                        ///< disagreement at the best focal length (deg)
-  /// The agreement was best at an end of the focal grid (0.3 .. 3 max(W, H)): no minimum was
+  double score = 0.0;                        ///< lowest disagreement over the grid (deg)
+  /// The lowest disagreement was at an end of the focal grid (0.3 .. 3 max(W, H)): no minimum was
   /// found, so the focal length is not determined by the homographies (it is still returned:
   /// on the ViSP cube's patch centres, 1152 px, where the KLT tracks give an interior 617 px).
   bool at_grid_end = false;
   std::string note;                          ///< why not ok
+  /// Every start considered: decompositions (lowest disagreement first), then the frontal one.
+  std::vector<StartHypothesis> hypotheses;
+  int chosen = 0;  ///< index into hypotheses of the one used
+  /// Frames over which the hypotheses were scored (absolute numbers; -1: not scored).
+  int scored_from = -1, scored_to = -1;
 };
 
-/// `focal_px` > 0: only that focal length is tried (known focal length). A best disagreement
-/// whose mean over its m^2 terms (m normal changes, m(m-1) rotation differences) exceeds
-/// `max_mean_disagreement_deg` is no start (ok = false, with the note): on opencv-doc's box.mp4
-/// (2 planes) the decompositions disagree by 27 deg at best (6.7 per term), and the plane filter
-/// started from them (normals with sd 0.1) diverged at frame 129; started frontal it gives 85.4
-/// deg between the faces. Consistent starts: 1.0 per term (rendered box, ViSP cube), 2.9 (the
-/// synthetic box tracks of tests/test_video.cpp, 0.5 px noise).
-PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& finding, double focal_px = 0.0,
-                      double max_mean_disagreement_deg = 5.0);
+/// `focal_px` > 0: only that focal length is tried (known focal length). `max_focal_minima`:
+/// the lowest local minima of the disagreement over the focal grid kept as hypotheses; each
+/// contributes its best combination for each of plane 0's decompositions in front at the pair
+/// frame (both branches of the two-fold ambiguity). The frontal hypothesis is always last.
+PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& finding, double focal_px = 0.0, int max_focal_minima = 2);
 
 }  // namespace rsfm::vision
