@@ -350,15 +350,21 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
         const cv::Matx33d Hb_inv = c.H[s.first].inv();
         bool ok = true;
         int checked = 0;
+        double moved = 0.0;  // the track's own largest displacement from its first position (px)
         const int step = std::max(1, s.length() / 8);
         for (int k = s.first + step; k <= s.last && ok; k += step) {
           const TrackPoint* pk = tracks.find(k, id);
           if (!pk || c.support[k] < kMinSupport) continue;
           const cv::Point2d q = apply(c.H[k] * Hb_inv, pt(*pb));
           ok = std::hypot(q.x - pk->px.x(), q.y - pk->px.y()) < verify_px;
+          moved = std::max(moved, (pk->px - pb->px).norm());
           ++checked;
         }
-        if (ok && checked >= 2) {
+        // Issue 14 item 2: the track's own motion must test the plane. A track that never moves
+        // more than the join tolerance from where it started fits "still" as well as it fits
+        // the plane (a still object's track, or the plane's, over a few slow frames): it cannot
+        // tell, and joins no moving plane.
+        if (ok && checked >= 2 && moved >= verify_px) {
           ++fits;
           which = c.label;
         }

@@ -19,7 +19,8 @@ struct PlaneFinderOptions {
   int min_plane_tracks = 12;         ///< a plane needs at least this many reference tracks
   double ransac_px = 2.0;            ///< homography inlier threshold at the pair frame (px)
   double verify_px = 3.0;            ///< a member may stray at most this far from its plane's
-                                     ///< least-squares homography in any frame (px)
+                                     ///< least-squares homography in any frame (px); a later
+                                     ///< track joins only after moving this far itself
   double min_alive_fraction = 0.5;   ///< the pair frame: last frame with this fraction alive
   double static_px = 2.0;            ///< planes whose members move less than this (median, px) are static
   double motion_px = 2.0;            ///< plane+parallax epipolar distance limit for "same motion" (px)
