@@ -163,6 +163,9 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     say(line + fmt::format("; outliers {}", pf.count(-1)));
   }
   TrackFilterOptions fopt = known.filter;
+  // The start's focal length at an end of its grid: warned about unless the refinement then
+  // determines the focal length from the whole sequence (box.mp4's windows @8, @16).
+  bool start_at_grid_end = false;
   if (o.homography_start && fopt.model != TrackModel::Point) {
     r.start_tried = true;
     r.start = vision::planeStart(tracks, pf, fopt.focal_px);
@@ -196,7 +199,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
                                      h.focal_px, h.disagreement_deg);
       for (const auto& n : h.normals) line += fmt::format(" ({:.2f}, {:.2f}, {:.2f})", n.x(), n.y(), n.z());
       say(line);
-      if (h.at_grid_end) say(std::string("warning: ") + kFocalGridEndWarning);
+      start_at_grid_end = h.at_grid_end;
     }
   }
   stageDone(&r.seconds.start);
@@ -223,6 +226,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
       say("warning: refinement: " + r.refined.message + "; the online estimate stands");
     }
   }
+  if (start_at_grid_end && !(r.refined.ok && r.refined.focal_determined)) say(std::string("warning: ") + kFocalGridEndWarning);
   return r;
 }
 
