@@ -1,0 +1,25 @@
+#!/bin/bash
+# The main plane's online reprojection RMS with every plane against the main plane alone, for
+# each run of a regime scoreboard with two planes or more (docs/regimes.md, "A per-plane
+# consistency test on the online filter"). Usage: bash bench/plane_consistency.sh BUILD_DIR RUNS_DIR
+# (RUNS_DIR: `rsfm bench regimes --out DIR`'s DIR/runs). Writes scratch runs under a temporary
+# directory; prints one line per run.
+set -euo pipefail
+build=${1:?build directory}; runs=${2:?the regime bench's runs directory}
+py=/usr/bin/python3
+tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
+for dir in "$runs"/*/; do
+  d=$(basename "$dir")
+  [ -f "$dir/tracks.csv" ] && [ -f "$dir/summary.json" ] || continue
+  n=$($py -c "import json,sys; print(len(json.load(open(sys.argv[1])).get('plane_tracks', [])))" "$dir/summary.json")
+  [ "$n" -ge 2 ] || continue
+  "$build/rsfm" estimate --tracks "$dir/tracks.csv" --refine none --no-plots --quiet --out "$tmp/$d/all" >/dev/null 2>&1 || continue
+  "$build/rsfm" estimate --tracks "$dir/tracks.csv" --refine none --no-plots --quiet --max-planes 1 --out "$tmp/$d/one" >/dev/null 2>&1 || continue
+  $py - "$d" "$tmp/$d/all/summary.json" "$tmp/$d/one/summary.json" <<'PY'
+import json, sys
+name, a, b = sys.argv[1], json.load(open(sys.argv[2])), json.load(open(sys.argv[3]))
+ra, rb = a["plane_reprojection_rms_px"], b["plane_reprojection_rms_px"]
+print(f"{name:20s} planes {len(ra)} tracks {a['plane_tracks']} rms {' '.join(f'{x:.3f}' for x in ra)}"
+      f"  main alone {rb[0]:.3f}  variance ratio {(ra[0] / rb[0]) ** 2:.2f}")
+PY
+done
