@@ -5,9 +5,16 @@
 # (RUNS_DIR: `rsfm bench regimes --out DIR`'s DIR/runs). Writes scratch runs under a temporary
 # directory; prints one line per run.
 set -euo pipefail
-build=${1:?build directory}; runs=${2:?the regime bench's runs directory}
+build=${1:?build directory}; runs=${2:?the runs directory of rsfm bench regimes}
 py=/usr/bin/python3
 tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
+report='
+import json, sys
+name, a, b = sys.argv[1], json.load(open(sys.argv[2])), json.load(open(sys.argv[3]))
+ra, rb = a["plane_reprojection_rms_px"], b["plane_reprojection_rms_px"]
+print("%-20s planes %d tracks %s rms %s  main alone %.3f  variance ratio %.2f"
+      % (name, len(ra), a["plane_tracks"], " ".join("%.3f" % x for x in ra), rb[0], (ra[0] / rb[0]) ** 2))
+'
 for dir in "$runs"/*/; do
   d=$(basename "$dir")
   [ -f "$dir/tracks.csv" ] && [ -f "$dir/summary.json" ] || continue
@@ -15,11 +22,5 @@ for dir in "$runs"/*/; do
   [ "$n" -ge 2 ] || continue
   "$build/rsfm" estimate --tracks "$dir/tracks.csv" --refine none --no-plots --quiet --out "$tmp/$d/all" >/dev/null 2>&1 || continue
   "$build/rsfm" estimate --tracks "$dir/tracks.csv" --refine none --no-plots --quiet --max-planes 1 --out "$tmp/$d/one" >/dev/null 2>&1 || continue
-  $py - "$d" "$tmp/$d/all/summary.json" "$tmp/$d/one/summary.json" <<'PY'
-import json, sys
-name, a, b = sys.argv[1], json.load(open(sys.argv[2])), json.load(open(sys.argv[3]))
-ra, rb = a["plane_reprojection_rms_px"], b["plane_reprojection_rms_px"]
-print(f"{name:20s} planes {len(ra)} tracks {a['plane_tracks']} rms {' '.join(f'{x:.3f}' for x in ra)}"
-      f"  main alone {rb[0]:.3f}  variance ratio {(ra[0] / rb[0]) ** 2:.2f}")
-PY
+  $py -c "$report" "$d" "$tmp/$d/all/summary.json" "$tmp/$d/one/summary.json"
 done
