@@ -18,7 +18,6 @@ namespace {
 std::string rf_message(const EstimateResult& er) {
   return er.refined.message.empty() ? std::string("no message") : er.refined.message.substr(0, er.refined.message.find(';'));
 }
-
 }  // namespace
 
 // Documented in pipeline/estimate.hpp.
@@ -176,14 +175,16 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
       scoreStartHypotheses(tracks, pf.labels, fopt, m, &start);
     const vision::StartHypothesis& h = start.hypotheses[start.chosen];
     fopt = startOptions(fopt, h, m);
-    if (!h.frontal) {
-      start.focal_px = h.focal_px;
-      start.normals = h.normals;
-      start.distance_ratios = h.distance_ratios;
-    }
+    start.focal_px = h.frontal ? 0.0 : h.focal_px;
+    start.normals = h.normals;
+    start.distance_ratios = h.distance_ratios;
+    start.at_grid_end = !h.frontal && h.at_grid_end;
     if (start.hypotheses.size() > 1) {
-      std::string line = fmt::format("start: {} hypotheses scored on frames {}-{} (chi-square per observation):", start.hypotheses.size(),
-                                     start.scored_from, start.scored_to);
+      std::string line =
+          start.scored_from < 0
+              ? fmt::format("start: {} hypotheses, every scoring filter stopped:", start.hypotheses.size())
+              : fmt::format("start: {} hypotheses scored on frames {}-{} (chi-square per observation):", start.hypotheses.size(),
+                            start.scored_from, start.scored_to);
       for (size_t i = 0; i < start.hypotheses.size(); ++i) {
         const vision::StartHypothesis& c = start.hypotheses[i];
         line += c.frontal ? " [frontal" : fmt::format(" [{:.0f} px branch {} disagreement {:.1f} deg", c.focal_px, c.branch, c.disagreement_deg);
@@ -193,7 +194,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
       say(line);
     }
     if (h.frontal) {
-      say("start: every plane frontal at the focal guess (the best-scored start)");
+      if (start.ok) say("start: every plane frontal at the focal guess (the best-scored start)");
     } else {
       std::string line = fmt::format("start: focal {:.0f} px from the homographies (disagreement {:.2f} deg), normals",
                                      h.focal_px, h.disagreement_deg);

@@ -43,14 +43,14 @@ struct PlaneStart {
   /// At least one decomposition hypothesis exists (false: no plane decomposes in front of the
   /// camera at any focal length; the note says why and only the frontal start remains).
   bool ok = false;
-  /// The hypothesis used: planeStart() sets the lowest-disagreement decomposition; the
-  /// pipeline's scoring may choose another one (also the frontal one).
+  /// The hypothesis used: planeStart() sets the lowest-disagreement decomposition; estimate()
+  /// sets the one its scoring chose (also the frontal one: focal 0, normals (0, 0, 1)).
   double focal_px = 0.0;                     ///< its focal length (0: frontal at the filter's guess)
   std::vector<Eigen::Vector3d> normals;      ///< per accepted plane (label order), reference camera frame
   std::vector<double> distance_ratios;       ///< d_j / d_0
   double score = 0.0;                        ///< lowest disagreement over the grid (deg)
-  /// The lowest disagreement was at an end of the focal grid (0.3 .. 3 max(W, H)): no minimum was
-  /// found, so the focal length is not determined by the homographies (it is still returned:
+  /// The hypothesis used is at an end of the focal grid (0.3 .. 3 max(W, H)): no minimum was
+  /// found there, so the focal length is not determined by the homographies (it is still returned:
   /// on the ViSP cube's patch centres, 1152 px, where the KLT tracks give an interior 617 px).
   bool at_grid_end = false;
   std::string note;                          ///< why not ok
