@@ -277,7 +277,7 @@ TEST(PlaneFinder, AStillTrackDoesNotJoinAMovingPlane) {
   // turns slowly (0.1 deg per frame), and two tracks are born at frame 50 on the face point that
   // moves most: one follows the point to the end (joins the face's plane), one stays where the
   // point was for as many frames as the plane needs to move it ~1.5 px (within the 3 px join
-  // tolerance, so before this test it joined). It never moves 3 px from where it started, so
+  // tolerance: without the motion test it joins, checked). It never moves 3 px from where it started, so
   // "still" explains it as well as the plane: it stays out.
   SyntheticTracks st = boxTracks(0.3, 0, 0, 5, 100, -0.1);
   Tracks& t = st.tracks;
