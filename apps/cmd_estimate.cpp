@@ -49,12 +49,12 @@ nlohmann::json startJson(const vision::PlaneStart& start) {
     if (!h.stopped.empty()) j["stopped"] = h.stopped;
     hyps.push_back(j);
   }
-  const vision::StartHypothesis& c = start.hypotheses.at(start.chosen);
+  const vision::StartHypothesis& c = start.used();
   nlohmann::json j = {{"chosen", start.chosen},
                       {"frontal", c.frontal},
                       {"focal_px", c.frontal ? nlohmann::json(nullptr) : nlohmann::json(c.focal_px)},
                       {"disagreement_deg", num(c.disagreement_deg)},
-                      {"focal_at_grid_end", !c.frontal && c.at_grid_end},
+                      {"focal_at_grid_end", c.at_grid_end},
                       {"hypotheses", hyps}};
   if (start.scored_from >= 0) j["scored_frames"] = {start.scored_from, start.scored_to};
   if (!start.note.empty()) j["note"] = start.note;

@@ -328,13 +328,14 @@ TEST(PlaneStart, AStillStartDoesNotHideTheFocalLength) {
   ASSERT_GE(pf.numPlanes(), 1);
   const vision::PlaneStart start = vision::planeStart(t, pf);
   ASSERT_TRUE(start.ok) << start.note;
-  EXPECT_FALSE(start.at_grid_end);
-  EXPECT_NEAR(start.focal_px, 256.0, 0.1 * 256.0) << "pair frame " << pf.pair_frame;
+  EXPECT_FALSE(start.used().at_grid_end);
+  EXPECT_NEAR(start.used().focal_px, 256.0, 0.1 * 256.0) << "pair frame " << pf.pair_frame;
   // Hypotheses, not one answer: the lowest disagreement first (the fields above), the frontal
   // start last, every decomposition with unit normals.
   ASSERT_GE(start.hypotheses.size(), 2u);
-  EXPECT_EQ(start.hypotheses.front().focal_px, start.focal_px);
-  EXPECT_EQ(start.hypotheses.front().disagreement_deg, start.score);
+  EXPECT_EQ(start.chosen, 0);
+  for (size_t i = 1; i + 1 < start.hypotheses.size(); ++i)
+    EXPECT_LE(start.hypotheses[i - 1].disagreement_deg, start.hypotheses[i].disagreement_deg);
   EXPECT_TRUE(start.hypotheses.back().frontal);
   for (const auto& h : start.hypotheses)
     for (const auto& n : h.normals) EXPECT_NEAR(n.norm(), 1.0, 1e-9);
@@ -424,13 +425,14 @@ TEST(TrackFilter, RecoversFocalAndFaceAnglesFromPixelTracks) {
   // The start from the homographies (what `rsfm estimate` does) is already close ...
   const vision::PlaneStart start = vision::planeStart(st.tracks, pf);
   ASSERT_TRUE(start.ok) << start.note;
-  EXPECT_NEAR(start.focal_px, 256.0, 0.1 * 256.0);
-  EXPECT_FALSE(start.at_grid_end) << "an interior minimum of the focal grid";
+  const vision::StartHypothesis& used = start.used();
+  EXPECT_NEAR(used.focal_px, 256.0, 0.1 * 256.0);
+  EXPECT_FALSE(used.at_grid_end) << "an interior minimum of the focal grid";
   TrackFilterOptions o;
   o.sigma_px = 0.5;
-  o.focal0_px = start.focal_px;
-  o.initial_normals = start.normals;
-  o.initial_distance_ratios = start.distance_ratios;
+  o.focal0_px = used.focal_px;
+  o.initial_normals = used.normals;
+  o.initial_distance_ratios = used.distance_ratios;
   o.normal_sd0 = 0.1;
   o.beta_sd0 = 0.1;
   const TrackFilterResult r = runTrackFilter(st.tracks, pf.labels, o);

@@ -173,12 +173,8 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     if (!start.ok) say("start: " + start.note + "; planes start frontal");
     else if (start.hypotheses.size() > 1)
       scoreStartHypotheses(tracks, pf.labels, fopt, m, &start);
-    const vision::StartHypothesis& h = start.hypotheses[start.chosen];
+    const vision::StartHypothesis& h = start.used();
     fopt = startOptions(fopt, h, m);
-    start.focal_px = h.frontal ? 0.0 : h.focal_px;
-    start.normals = h.normals;
-    start.distance_ratios = h.distance_ratios;
-    start.at_grid_end = !h.frontal && h.at_grid_end;
     if (start.hypotheses.size() > 1) {
       std::string line =
           start.scored_from < 0
@@ -298,13 +294,13 @@ PatchEstimateResult estimatePatches(const PatchTracks& tracks, const PatchEstima
       start.note = ex.what();
     }
     if (start.ok) {
-      po.focal0_px = start.focal_px;
+      po.focal0_px = start.used().focal_px;
       if (!po.beta_sd0) po.beta_sd0 = 0.1;
     }
     if (note)
       note(fmt::format("start: {}",
-                       start.ok ? fmt::format("focal {:.0f} px from homographies of the patch centres{}", start.focal_px,
-                                              start.at_grid_end ? fmt::format("\nwarning: {}", kFocalGridEndWarning) : "")
+                       start.ok ? fmt::format("focal {:.0f} px from homographies of the patch centres{}", start.used().focal_px,
+                                              start.used().at_grid_end ? fmt::format("\nwarning: {}", kFocalGridEndWarning) : "")
                                 : start.note + "; focal starts at max(width, height)"));
   }
   r.patch_used = po;

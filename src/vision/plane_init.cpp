@@ -190,18 +190,7 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
   std::stable_sort(out.hypotheses.begin(), out.hypotheses.end(),
                    [](const StartHypothesis& a, const StartHypothesis& b) { return a.disagreement_deg < b.disagreement_deg; });
   out.ok = !out.hypotheses.empty();
-  if (out.ok) {
-    const StartHypothesis& h = out.hypotheses.front();
-    out.focal_px = h.focal_px;
-    out.normals = h.normals;
-    out.distance_ratios = h.distance_ratios;
-    out.score = h.disagreement_deg;
-    out.at_grid_end = h.at_grid_end;
-  } else {
-    out.note = "no homography decomposition with the planes in front of the camera";
-  }
-  frontal.normals.assign(m, Eigen::Vector3d::UnitZ());
-  frontal.distance_ratios.assign(m, 1.0);
+  if (!out.ok) out.note = "no homography decomposition with the planes in front of the camera";
   out.hypotheses.push_back(frontal);
   return out;
 }

@@ -32,9 +32,13 @@ struct StartHypothesis {
   double disagreement_deg = std::numeric_limits<double>::quiet_NaN();
   int focal_minimum = 0;  ///< rank of its focal-grid minimum (0: the lowest disagreement)
   int branch = 0;         ///< plane 0's decomposition at the pair frame (0, 1: the two in front)
-  bool at_grid_end = false;  ///< that minimum is at an end of the focal grid (not a minimum: not determined)
-  /// Filled by the scoring (pipeline/estimate.cpp): mean chi-square-truncated innovation per
-  /// observation over the scored frames (lower = the data agree better; +inf: the filter stopped).
+  /// That minimum is at an end of the focal grid (0.3 .. 3 max(W, H)): no minimum was found
+  /// there, so the homographies do not determine the focal length (on the ViSP cube's patch
+  /// centres, 1152 px, where the KLT tracks give an interior 617 px).
+  bool at_grid_end = false;
+  /// Filled by the scoring (rsfm::scoreStartHypotheses): per offered observation over the scored
+  /// frames, the update's joint innovation chi-square of the accepted ones plus the gate's value
+  /// for the others (lower = the data agree better; +inf: the filter stopped).
   double score = std::numeric_limits<double>::quiet_NaN();
   std::string stopped;  ///< why its scoring filter stopped (empty: it ran)
 };
@@ -43,20 +47,14 @@ struct PlaneStart {
   /// At least one decomposition hypothesis exists (false: no plane decomposes in front of the
   /// camera at any focal length; the note says why and only the frontal start remains).
   bool ok = false;
-  /// The hypothesis used: planeStart() sets the lowest-disagreement decomposition; estimate()
-  /// sets the one its scoring chose (also the frontal one: focal 0, normals (0, 0, 1)).
-  double focal_px = 0.0;                     ///< its focal length (0: frontal at the filter's guess)
-  std::vector<Eigen::Vector3d> normals;      ///< per accepted plane (label order), reference camera frame
-  std::vector<double> distance_ratios;       ///< d_j / d_0
-  double score = 0.0;                        ///< lowest disagreement over the grid (deg)
-  /// The hypothesis used is at an end of the focal grid (0.3 .. 3 max(W, H)): no minimum was
-  /// found there, so the focal length is not determined by the homographies (it is still returned:
-  /// on the ViSP cube's patch centres, 1152 px, where the KLT tracks give an interior 617 px).
-  bool at_grid_end = false;
   std::string note;                          ///< why not ok
   /// Every start considered: decompositions (lowest disagreement first), then the frontal one.
+  /// Never empty after planeStart() (empty: no start was tried).
   std::vector<StartHypothesis> hypotheses;
-  int chosen = 0;  ///< index into hypotheses of the one used
+  /// Index into hypotheses of the one used: planeStart() sets 0 (the lowest disagreement, or the
+  /// frontal start when no decomposition exists); scoreStartHypotheses() the best-scored one.
+  int chosen = 0;
+  const StartHypothesis& used() const { return hypotheses.at(chosen); }
   /// Frames over which the hypotheses were scored (absolute numbers; -1: not scored).
   int scored_from = -1, scored_to = -1;
 };
