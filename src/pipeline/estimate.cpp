@@ -250,7 +250,7 @@ PatchEstimateResult estimatePatches(const PatchTracks& tracks, const PatchEstima
     eo.filter.model = TrackModel::Planes;
     eo.filter.focal_px = po.focal_px;
     eo.finder = o.finder;
-    eo.finder.min_plane_tracks = std::min(eo.finder.min_plane_tracks, 8);
+    eo.finder.min_plane_tracks = std::min(eo.finder.min_plane_tracks, vision::kHomographyTestTracks);
     try {
       const EstimateResult er = estimate(centres, eo);
       if (er.refined.ok) {
@@ -284,7 +284,7 @@ PatchEstimateResult estimatePatches(const PatchTracks& tracks, const PatchEstima
     vision::PlaneStart& start = r.start;
     try {
       vision::PlaneFinderOptions fo = o.finder;
-      fo.min_plane_tracks = std::min(fo.min_plane_tracks, 8);
+      fo.min_plane_tracks = std::min(fo.min_plane_tracks, vision::kHomographyTestTracks);
       const vision::PlaneFinding pf = vision::findPlanes(centres, fo);
       if (pf.numPlanes() > 0)
         start = vision::planeStart(centres, pf, 0.0);

@@ -114,9 +114,8 @@ double sameMotionFraction(const cv::Matx33d& H1, const std::vector<cv::Point2d>&
 }  // namespace
 
 PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
-  // A frame's homography tests a track when at least this many members determine it (4 fix
-  // it exactly; twice that leaves 8 residual degrees of freedom to show a bad fit).
-  constexpr int kMinSupport = 8;
+  // A frame's homography tests a track when at least this many members determine it.
+  constexpr int kMinSupport = kHomographyTestTracks;
   if (o.max_planes < 1 || o.min_plane_tracks < 4 || !(o.ransac_px > 0) || !(o.verify_px > 0) ||
       !(o.min_alive_fraction > 0 && o.min_alive_fraction <= 1))
     throw std::invalid_argument("plane finder: options out of range");
@@ -210,6 +209,23 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
       motion = std::max(motion, d[d.size() / 2]);
     }
     c->median_motion_px = motion;
+    // Issue 14 item 2: on a moving plane, a member whose own motion never reaches the
+    // verification tolerance from where it was first seen fits "still" as well as it fits the
+    // plane (a point of the still background near where the plane's homography barely moves
+    // the image, e.g. the image of its rotation axis): it does not test the plane, and is not
+    // a member. The same rule as for a track joining later (below).
+    if (motion >= o.static_px) {
+      std::vector<int> keep;
+      for (int id : c->members) {
+        const TrackSpan s = spans[id];
+        const TrackPoint* pf = s.first >= 0 ? tracks.find(s.first, id) : nullptr;
+        double moved = 0.0;
+        for (int k = s.first + 1; pf && k <= s.last && moved < verify_px; ++k)
+          if (const TrackPoint* pk = tracks.find(k, id)) moved = std::max(moved, (pk->px - pf->px).norm());
+        if (moved >= verify_px) keep.push_back(id);
+      }
+      c->members.swap(keep);
+    }
   };
 
   std::vector<FoundPlane> cands;

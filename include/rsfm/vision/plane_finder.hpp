@@ -14,9 +14,17 @@
 
 namespace rsfm::vision {
 
+/// Tracks that let a homography test its members (issue 14 item 2): 4 fix it, twice that give
+/// 16 equations for its 8 unknowns, so 8 residual degrees of freedom in which a track off the
+/// plane shows. The finder's per-frame fits and the joining of later tracks need this many
+/// members in view, and a plane needs this many reference tracks. Whether so few determine the
+/// plane's normal under the measured tracking noise is the refinement's verdict
+/// (RefineResult::plane_determined), not the finder's.
+inline constexpr int kHomographyTestTracks = 8;
+
 struct PlaneFinderOptions {
   int max_planes = 3;                ///< planes kept at most
-  int min_plane_tracks = 12;         ///< a plane needs at least this many reference tracks
+  int min_plane_tracks = kHomographyTestTracks;  ///< a plane needs at least this many reference tracks
   double ransac_px = 2.0;            ///< homography inlier threshold at the pair frame (px)
   double verify_px = 3.0;            ///< a member may stray at most this far from its plane's
                                      ///< least-squares homography in any frame (px); a later
