@@ -13,6 +13,7 @@
 #include "track_options.hpp"
 #include "rsfm/clock.hpp"
 #include "rsfm/io/atomic_file.hpp"
+#include "rsfm/io/json_text.hpp"
 #include "rsfm/report/estimate_report.hpp"
 #include "rsfm/report/patch_report.hpp"
 #include "rsfm/report/html_report.hpp"
@@ -31,7 +32,6 @@ namespace {
 
 /// summary.json's `start`: the hypotheses considered, their scores and the one used (docs/outputs.md).
 nlohmann::json startJson(const vision::PlaneStart& start) {
-  auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); };
   nlohmann::json hyps = nlohmann::json::array();
   for (const auto& h : start.hypotheses) {
     nlohmann::json normals = nlohmann::json::array();
@@ -39,8 +39,8 @@ nlohmann::json startJson(const vision::PlaneStart& start) {
     nlohmann::json j = {{"kind", h.frontal ? "frontal" : "decomposition"},
                         {"focal_px", h.frontal ? nlohmann::json(nullptr) : nlohmann::json(h.focal_px)},
                         {"normals", normals},
-                        {"disagreement_deg", num(h.disagreement_deg)},
-                        {"score", num(h.score)}};
+                        {"disagreement_deg", io::finiteOrNull(h.disagreement_deg)},
+                        {"score", io::finiteOrNull(h.score)}};
     if (!h.frontal) {
       j["focal_minimum"] = h.focal_minimum;
       j["branch"] = h.branch;
@@ -53,7 +53,7 @@ nlohmann::json startJson(const vision::PlaneStart& start) {
   nlohmann::json j = {{"chosen", start.chosen},
                       {"frontal", c.frontal},
                       {"focal_px", c.frontal ? nlohmann::json(nullptr) : nlohmann::json(c.focal_px)},
-                      {"disagreement_deg", num(c.disagreement_deg)},
+                      {"disagreement_deg", io::finiteOrNull(c.disagreement_deg)},
                       {"focal_at_grid_end", c.at_grid_end},
                       {"hypotheses", hyps}};
   if (start.scored_from >= 0) j["scored_frames"] = {start.scored_from, start.scored_to};

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cmath>
 
 namespace rsfm::io {
 
@@ -23,5 +24,7 @@ nlohmann::json parseJsonText(const std::string& text, const std::string& source)
     throw InputError(fmt::format("{}: invalid JSON: {}", printable(source, 300), printable(msg, 200)));
   }
 }
+
+nlohmann::json finiteOrNull(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
 
 }  // namespace rsfm::io

@@ -12,6 +12,7 @@
 #include "rsfm/report/estimate_report.hpp"
 #include "rsfm/report/report.hpp"
 #include "rsfm/io/tum.hpp"
+#include "rsfm/io/json_text.hpp"
 #include "rsfm/rotation.hpp"
 
 namespace rsfm::report {
@@ -21,8 +22,6 @@ using namespace rsfm::io;  // the file formats the reports write
 namespace {
 
 std::string num(double v, int prec = 6) { return formatNumber(v, prec); }
-
-nlohmann::json finiteOrNull(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
 
 }  // namespace
 

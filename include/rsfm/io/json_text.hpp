@@ -10,4 +10,8 @@ namespace rsfm::io {
 
 nlohmann::json parseJsonText(const std::string& text, const std::string& source);
 
+/// A number for a summary: null when it is not finite (docs/outputs.md: a quantity that could not
+/// be computed is null, never NaN or inf, which JSON cannot hold).
+nlohmann::json finiteOrNull(double v);
+
 }  // namespace rsfm::io
