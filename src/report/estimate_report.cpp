@@ -189,6 +189,7 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
         j["focal_px"] = nullptr;
         j["focal_sd_px"] = nullptr;
         if (rf.focal_interval_px) j["focal_interval_px"] = {(*rf.focal_interval_px)[0], (*rf.focal_interval_px)[1]};
+        if (rf.focal_profile_best_px > 0) j["focal_profile_best_px"] = rf.focal_profile_best_px;
       }
       j["plane_determined"] = rf.plane_determined;
       // A plane the data do not determine gets no sd (issue 17: 3.5 deg was reported for a normal

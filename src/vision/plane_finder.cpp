@@ -131,12 +131,30 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
   for (const auto& p : tracks.frames[0]) ref_ids.push_back(p.id);
   const int n0 = static_cast<int>(ref_ids.size());
 
-  // Pair frame: the last frame where enough reference tracks are alive.
+  // Pair frame: the last frame where half of the reference tracks are alive, and half of those
+  // that can test a moving plane: the tracks whose own motion reaches the verification tolerance
+  // somewhere in their lives (issue 14 item 2). A still background's tracks outlive an object's;
+  // counting only all tracks put the pair frame where the object's tracks were nearly all gone
+  // (webcam-object: 14 moving tracks alive at the pair frame, no plane). When fewer tracks move
+  // than two planes need, only the first condition holds (nothing moves: the static planes are
+  // found, and the run is refused with "nothing moves").
+  std::vector<int> movers;
+  for (int id : ref_ids) {
+    const TrackPoint* p0 = tracks.find(0, id);
+    double moved = 0.0;
+    for (int k = 1; k <= spans[id].last && moved < o.verify_px; ++k)
+      if (const TrackPoint* pk = tracks.find(k, id)) moved = std::max(moved, (pk->px - p0->px).norm());
+    if (moved >= o.verify_px) movers.push_back(id);
+  }
+  if (static_cast<int>(movers.size()) < 2 * o.min_plane_tracks) movers.clear();
   int pair = 1;
   for (int k = 1; k < F; ++k) {
-    int alive = 0;
+    int alive = 0, alive_movers = 0;
     for (int id : ref_ids) alive += tracks.find(k, id) != nullptr;
-    if (alive >= std::max(o.min_alive_fraction * n0, 2.0 * o.min_plane_tracks)) pair = k;
+    for (int id : movers) alive_movers += tracks.find(k, id) != nullptr;
+    if (alive >= std::max(o.min_alive_fraction * n0, 2.0 * o.min_plane_tracks) &&
+        alive_movers >= o.min_alive_fraction * static_cast<double>(movers.size()))
+      pair = k;
   }
   res.pair_frame = pair;
 

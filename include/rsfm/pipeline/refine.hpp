@@ -99,8 +99,13 @@ struct RefineResult {
   /// reference; above 1000 the likelihood ratio test is skipped (infinite in the fields above).
   double wald_translation_chi2 = 0.0, wald_rotation_chi2 = 0.0;
   bool focal_determined = false;
-  /// When not determined: what the data support (the focal length's profile, docs/estimate.md).
+  /// When not determined: what the data support (the linear 95 % interval of beta at the
+  /// optimum, widened by the focal length's profile over 0.3-3 x the larger image side;
+  /// docs/estimate.md, section 4).
   std::optional<std::array<double, 2>> focal_interval_px;
+  /// The profile's best-fitting focal length on its grid (the estimate itself unless another
+  /// fits better; 0 when no profile was computed).
+  double focal_profile_best_px = 0.0;
   std::vector<bool> plane_determined;
   std::string why;            ///< one line on what is not determined and why (empty when all is)
   int iterations = 0;
