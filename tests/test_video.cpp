@@ -403,6 +403,56 @@ TEST(PlaneStart, AStillStartDoesNotHideTheFocalLength) {
     for (const auto& n : h.normals) EXPECT_NEAR(n.norm(), 1.0, 1e-9);
 }
 
+// DISABLED: a reproducer of an open defect (issue 14 item 3; docs/regimes.md, "A start chosen by
+// a refinement per hypothesis: measured, not kept"). It fails today; enable it with the fix.
+TEST(PlaneStart, DISABLED_TheBranchAndTheFocalMinimumAreChosenRight) {
+  // The planar two-fold ambiguity ([AS99] §3.1): a plane tilted 30 deg, the camera orbiting its
+  // centre (0.3 deg per frame) while moving towards it, so that the second decomposition is in
+  // front of the camera too; 60 points, 0.5 px. Both branches are among the hypotheses, at two
+  // focal minima. The scoring filters cannot tell the right start from the second focal minimum
+  // (50 deg off): 1.935 against 1.936 (forward 0.02) and 1.929 against 1.946 (0.03), and the
+  // pipeline ends there: focal 1153 and 1318 px, the normal 49 and 42 deg off. A full refinement
+  // from each hypothesis ranks them right (reprojection RMS 0.4893 against 0.4896 px, 0.4863
+  // against 0.4866), but choosing by it was not kept (see the docs).
+  for (const double forward : {0.02, 0.03}) {
+    SCOPED_TRACE(forward);
+    const double f = 512.0, c = 255.5;
+    std::mt19937_64 rng(5);
+    std::uniform_real_distribution<double> u(-0.35, 0.35);
+    std::normal_distribution<double> g(0.0, 0.5);
+    const Eigen::Vector3d n = Eigen::AngleAxisd(30.0 * M_PI / 180.0, Eigen::Vector3d::UnitX()) * Eigen::Vector3d::UnitZ();
+    const Eigen::Vector3d centre(0, 0, 3.0);
+    std::vector<Eigen::Vector3d> X;  // on n . X = 3, seen in the reference camera
+    while (X.size() < 60) {
+      const Eigen::Vector3d ray(u(rng), u(rng), 1.0);
+      X.push_back(ray * (3.0 / n.dot(ray)));
+    }
+    Tracks tracks;
+    tracks.image = {512, 512, c, c};
+    for (int k = 0; k <= 60; ++k) {
+      const Eigen::Matrix3d R = Eigen::AngleAxisd(0.3 * k * M_PI / 180.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
+      const Eigen::Vector3d C = centre - R.transpose() * centre + forward * k * (R.transpose() * Eigen::Vector3d::UnitZ());
+      std::vector<TrackPoint> pts;
+      for (size_t i = 0; i < X.size(); ++i) {
+        const Eigen::Vector3d Y = R * (X[i] - C);
+        pts.push_back({static_cast<int>(i), Eigen::Vector2d(f * Y.x() / Y.z() + c + g(rng), f * Y.y() / Y.z() + c + g(rng))});
+      }
+      tracks.frames.push_back(std::move(pts));
+    }
+    auto angle = [&](const Eigen::Vector3d& m) { return std::acos(std::min(1.0, std::abs(m.normalized().dot(n)))) * 180.0 / M_PI; };
+    EstimateOptions eo;
+    eo.filter.model = TrackModel::Plane;
+    const EstimateResult r = estimate(tracks, eo);
+    ASSERT_TRUE(r.refined.ok) << r.refined.message;
+    int branches = 0;
+    for (const auto& h : r.start.hypotheses) branches = std::max(branches, h.branch + 1);
+    EXPECT_EQ(branches, 2) << "both decompositions in front: the ambiguity is there to resolve";
+    const TrackFrame& last = r.main().frames.back();
+    EXPECT_LT(angle(last.N[0]), 2.5) << "the estimated normal";
+    EXPECT_NEAR(r.main().scale_px / last.beta, f, 0.03 * f) << "the estimated focal length";
+  }
+}
+
 TEST(PlaneStart, TheDataChooseTheStartNotTheOrder) {
   // Issue 14 item 3: the starts are hypotheses - each local minimum of the focal search and each
   // decomposition with the plane in front (the planar two-fold ambiguity, [AS99] §3.1), beside

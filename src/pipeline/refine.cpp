@@ -494,6 +494,8 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     r.focal_interval_px = rotates && b.beta_estimable
                               ? std::array<double, 2>{std::max(lo, s / bhi), blo > 0 ? std::min(hi, s / blo) : hi}
                               : std::array<double, 2>{lo, hi};
+    // An interval wholly outside the range (the optimum far beyond it, e.g. 441000 px): the range.
+    if ((*r.focal_interval_px)[0] > (*r.focal_interval_px)[1]) r.focal_interval_px = std::array<double, 2>{lo, hi};
     if (rotates && b.beta_estimable) {
       // That interval is local to this optimum. The focal length's profile over the whole range
       // widens it where the data fit as well elsewhere: from the optimum outwards, one solve per
