@@ -130,6 +130,18 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
   std::vector<int> ref_ids;
   for (const auto& p : tracks.frames[0]) ref_ids.push_back(p.id);
   const int n0 = static_cast<int>(ref_ids.size());
+  // Whether each track's own motion reaches the verification tolerance from where it was first
+  // seen (issue 14 item 2): a track that never does fits "still" as well as any moving plane, so
+  // it cannot test one. Used by the pair frame and by every plane's member test below.
+  std::vector<char> moves(ids, 0);
+  for (int id = 0; id < ids; ++id) {
+    const TrackSpan s = spans[id];
+    const TrackPoint* p0 = s.first >= 0 ? tracks.find(s.first, id) : nullptr;
+    double moved = 0.0;
+    for (int k = s.first + 1; p0 && k <= s.last && moved < o.verify_px; ++k)
+      if (const TrackPoint* pk = tracks.find(k, id)) moved = std::max(moved, (pk->px - p0->px).norm());
+    moves[id] = moved >= o.verify_px;
+  }
 
   // Pair frame: the last frame where half of the reference tracks are alive, and half of those
   // that can test a moving plane: the tracks whose own motion reaches the verification tolerance
@@ -139,13 +151,8 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
   // than two planes need, only the first condition holds (nothing moves: the static planes are
   // found, and the run is refused with "nothing moves").
   std::vector<int> movers;
-  for (int id : ref_ids) {
-    const TrackPoint* p0 = tracks.find(0, id);
-    double moved = 0.0;
-    for (int k = 1; k <= spans[id].last && moved < o.verify_px; ++k)
-      if (const TrackPoint* pk = tracks.find(k, id)) moved = std::max(moved, (pk->px - p0->px).norm());
-    if (moved >= o.verify_px) movers.push_back(id);
-  }
+  for (int id : ref_ids)
+    if (moves[id]) movers.push_back(id);
   if (static_cast<int>(movers.size()) < 2 * o.min_plane_tracks) movers.clear();
   int pair = 1;
   for (int k = 1; k < F; ++k) {
@@ -232,18 +239,9 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
     // plane (a point of the still background near where the plane's homography barely moves
     // the image, e.g. the image of its rotation axis): it does not test the plane, and is not
     // a member. The same rule as for a track joining later (below).
-    if (motion >= o.static_px) {
-      std::vector<int> keep;
-      for (int id : c->members) {
-        const TrackSpan s = spans[id];
-        const TrackPoint* pf = s.first >= 0 ? tracks.find(s.first, id) : nullptr;
-        double moved = 0.0;
-        for (int k = s.first + 1; pf && k <= s.last && moved < verify_px; ++k)
-          if (const TrackPoint* pk = tracks.find(k, id)) moved = std::max(moved, (pk->px - pf->px).norm());
-        if (moved >= verify_px) keep.push_back(id);
-      }
-      c->members.swap(keep);
-    }
+    if (motion >= o.static_px)
+      c->members.erase(std::remove_if(c->members.begin(), c->members.end(), [&](int id) { return !moves[id]; }),
+                       c->members.end());
   };
 
   std::vector<FoundPlane> cands;
