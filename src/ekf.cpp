@@ -156,6 +156,31 @@ namespace {
 /// reallocate every time.
 Eigen::Index grown(Eigen::Index need, Eigen::Index have) { return need <= have ? have : need + need / 4; }
 constexpr int kMaxBlockDim = 6;  // the patch model's 6-row blocks are the largest
+// Free state sizes of the fused two-row path (Ekf::fusedTwoRow): one plane (7 motion + 3 plane
+// components, the gauge and a known focal length fixed or not) and a little room.
+constexpr int kFusedMin = 7, kFusedMax = 12;
+
+/// In-place Cholesky A = L L^T of a small symmetric matrix from its lower half (plain loops: at
+/// these sizes Eigen's LLT spends most of its time in set-up). The strict upper half is zeroed.
+/// False when a pivot is not positive (Eigen's LLT criterion): A is then left partly overwritten.
+template <class Mat>
+bool smallCholesky(Mat& A) {
+  const int n = static_cast<int>(A.rows());
+  for (int j = 0; j < n; ++j) {
+    double d = A(j, j);
+    for (int k = 0; k < j; ++k) d -= A(j, k) * A(j, k);
+    if (!(d > 0.0)) return false;
+    const double ljj = std::sqrt(d), inv = 1.0 / ljj;
+    A(j, j) = ljj;
+    for (int i = j + 1; i < n; ++i) {
+      double v = A(i, j);
+      for (int k = 0; k < j; ++k) v -= A(i, k) * A(j, k);
+      A(i, j) = v * inv;
+    }
+    for (int i = 0; i < j; ++i) A(i, j) = 0.0;
+  }
+  return true;
+}
 }  // namespace
 
 void BlockBatch::reserve(int max_blocks, int bd, int shared_cols, int own_cols) {
@@ -239,9 +264,17 @@ bool Ekf::factorPrior(UpdateStats* st) {
   }
   // P_f = G G^T: Cholesky when P_f is positive definite (the usual case), else the pivoted LDLT,
   // whose pivots within round-off of zero are taken as zero (zero-variance directions allowed).
-  w.llt.compute(w.Pf);
-  if (w.llt.info() == Eigen::Success) {
-    w.G = w.llt.matrixL();
+  bool llt_ok;
+  if (nf <= kFusedMax) {
+    w.G = w.Pf;
+    llt_ok = smallCholesky(w.G);
+  } else {
+    w.llt.compute(w.Pf);
+    llt_ok = w.llt.info() == Eigen::Success;
+    if (llt_ok) w.G = w.llt.matrixL();
+  }
+  if (llt_ok) {
+    w.G_lower = true;
   } else {
     w.ldlt.compute(w.Pf);
     const Eigen::VectorXd D = w.ldlt.vectorD();
@@ -252,6 +285,7 @@ bool Ekf::factorPrior(UpdateStats* st) {
     }
     const Eigen::MatrixXd L = w.ldlt.matrixL();
     w.G = w.ldlt.transpositionsP().transpose() * (L * D.cwiseMax(0.0).cwiseSqrt().asDiagonal());
+    w.G_lower = false;
   }
   if (all_free) {
     w.Gx = w.G;
@@ -270,6 +304,144 @@ bool nonFinite(UpdateStats* st) {
   return false;
 }
 }  // namespace
+
+// The fused two-row path (issue 15 item 1). The blocks all depend on the same W free columns,
+// and these are the free components in order, so with P_f = G G^T (Cholesky, G lower triangular)
+// block b's whitened rows are A_b = L_b^-1 H_b G with A_b(:, c) = sum_{j >= c} H_b(:, j) G(j, c):
+// half the multiply-adds of a general product. The gate (as in gateAndWhiten), the information
+// sums M = I + sum_b A_b^T A_b and g = sum_b A_b^T e_b, and e^T e are accumulated in the same
+// pass in W-sized fixed types, so no m x W matrix is written and read back. When the information
+// form applies, the update follows here too in fixed types (dx = G M^-1 g, P+ = T^T T with
+// T = L^-1 G^T, nis = e^T e - g^T M^-1 g: the same equations as Ekf::update). Otherwise the
+// accepted blocks' rows are kept in A and e for the covariance form, which update() applies.
+template <int W>
+bool Ekf::fusedTwoRow(const BlockBatch& batch, const UpdateOptions& opt, UpdateStats* st, const int* pos,
+                      const int* skip, int nskip, double iso) {
+  using MatW = Eigen::Matrix<double, W, W>;
+  using VecW = Eigen::Matrix<double, W, 1>;
+  using Mat2W = Eigen::Matrix<double, 2, W>;
+  Work& w = w_;
+  const int nb = batch.blocks;
+  const double inv_s = iso > 0.0 ? 1.0 / std::sqrt(iso) : 1.0;
+  const MatW G = w.G;
+  const MatW Gs = G * inv_s;  // R_b = iso I folded into G (as in gateAndWhiten)
+  const bool gating = opt.gate_probability > 0.0 && opt.gate_probability < 1.0;
+  // Rows of A the covariance form may need: all when it is asked for; with Auto only while the
+  // accepted rows could still number no more than W (the covariance form's condition).
+  const int keep_rows = opt.form == UpdateForm::Covariance ? 2 * nb : opt.form == UpdateForm::Information ? 0 : W;
+  Eigen::Matrix<double, 2, W*(W + 1) / 2> Mp = Eigen::Matrix<double, 2, W*(W + 1) / 2>::Zero();
+  Mat2W gp = Mat2W::Zero();
+  double ee = 0.0, ss = 0.0;
+  int k = 0;
+  for (int b = 0; b < nb; ++b) {
+    const int r = 2 * b;
+    const double r00 = batch.R(r, 0), r01 = batch.R(r, 1), r10 = batch.R(r + 1, 0), r11 = batch.R(r + 1, 1);
+    const double e0r = batch.residual[r], e1r = batch.residual[r + 1];
+    if (!std::isfinite(r00 + r01 + r10 + r11 + e0r + e1r)) return nonFinite(st);
+    for (int q = 0; q < nskip; ++q)
+      if (!std::isfinite(batch.J(r, skip[q]) + batch.J(r + 1, skip[q]))) return nonFinite(st);
+    // Column j of Hb holds both rows' entries (one SSE2 packet); so do A_b's columns.
+    Mat2W Hb;
+    for (int j = 0; j < W; ++j) Hb.col(j) << batch.J(r, pos[j]), batch.J(r + 1, pos[j]);
+    Eigen::Vector2d eb;
+    if (iso > 0.0) {
+      eb << e0r * inv_s, e1r * inv_s;
+    } else {  // whiten H_b's rows and r_b with L_b^-1 (L_b L_b^T = R_b), before the product
+      const double l00 = std::sqrt(r00), l10 = r10 / l00, d11 = r11 - l10 * l10;
+      if (!(r00 > 0.0) || !(d11 > 0.0)) {
+        st->health |= kBadMeasurementCovariance;
+        return false;
+      }
+      const double l11 = std::sqrt(d11);
+      Hb.row(0) *= 1.0 / l00;
+      Hb.row(1) = (Hb.row(1) - l10 * Hb.row(0)) * (1.0 / l11);
+      eb[0] = e0r / l00;
+      eb[1] = (e1r - l10 * eb[0]) / l11;
+    }
+    Mat2W Ab;
+#pragma GCC unroll 16
+    for (int c = 0; c < W; ++c) {
+      Eigen::Vector2d acc = Hb.col(c) * Gs(c, c);
+#pragma GCC unroll 16
+      for (int j = c + 1; j < W; ++j) acc += Hb.col(j) * Gs(j, c);
+      Ab.col(c) = acc;
+    }
+    // S_b - I = A_b A_b^T: its diagonal as one packet sum, the off-diagonal as a dot product.
+    Eigen::Vector2d sd = Ab.col(0).cwiseAbs2();
+    double s01 = Ab(0, 0) * Ab(1, 0);
+    for (int c = 1; c < W; ++c) sd += Ab.col(c).cwiseAbs2(), s01 += Ab(0, c) * Ab(1, c);
+    const double s00 = 1.0 + sd[0], s11 = 1.0 + sd[1];
+    if (!std::isfinite(s00 + s11)) return nonFinite(st);  // a non-finite Jacobian entry
+    if (gating) {
+      const double d2 = (s11 * eb[0] * eb[0] - 2.0 * s01 * eb[0] * eb[1] + s00 * eb[1] * eb[1]) / (s00 * s11 - s01 * s01);
+      if (!(d2 <= w.gate)) {
+        st->gated_mask[b] = 1;
+        ++st->gated;
+        continue;
+      }
+    }
+    if (2 * k + 2 <= keep_rows) {
+      w.A.block(2 * k, 0, 2, W) = Ab;
+      w.e.template segment<2>(2 * k) = eb;
+    }
+    // M and g accumulated per row lane: Mp(:, t) += A_b(:, i) .* A_b(:, c) for t = (i, c), i >= c,
+    // and gp(:, c) += A_b(:, c) .* e_b; the two lanes are added once after the loop.
+#pragma GCC unroll 16
+    for (int c = 0, t = 0; c < W; ++c) {
+      const Eigen::Vector2d ac = Ab.col(c);
+#pragma GCC unroll 16
+      for (int i = c; i < W; ++i, ++t) Mp.col(t) += Ab.col(i).cwiseProduct(ac);
+      gp.col(c) += ac.cwiseProduct(eb);
+    }
+    ee += eb.squaredNorm();
+    ss += e0r * e0r + e1r * e1r;
+    ++k;
+  }
+  st->used = k;
+  st->nis_dof = 2 * k;
+  if (k < std::max(1, opt.min_blocks)) {
+    st->health |= kTooFewMeasurements;
+    return false;
+  }
+  st->innovation_rms = std::sqrt(ss / (2 * k));
+  const UpdateForm form = opt.form != UpdateForm::Auto ? opt.form : 2 * k > W ? UpdateForm::Information : UpdateForm::Covariance;
+  if (form != UpdateForm::Information) return true;  // update() applies the covariance form to A, e
+  st->form_used = form;
+  MatW M;  // I + sum_b A_b^T A_b (lower half; LLT reads no other)
+  for (int c = 0, t = 0; c < W; ++c)
+    for (int i = c; i < W; ++i, ++t) M(i, c) = Mp(0, t) + Mp(1, t) + (i == c ? 1.0 : 0.0);
+  const VecW g = gp.colwise().sum().transpose();
+  MatW& L = M;  // M = L L^T in place
+  if (!smallCholesky(L)) {
+    st->health |= kSolveFailed;
+    return false;
+  }
+  const VecW inv_d = L.diagonal().cwiseInverse();
+  VecW y = g;  // y = L^-T L^-1 g
+  for (int i = 0; i < W; ++i) {
+    for (int k = 0; k < i; ++k) y[i] -= L(i, k) * y[k];
+    y[i] *= inv_d[i];
+  }
+  for (int i = W - 1; i >= 0; --i) {
+    for (int k = i + 1; k < W; ++k) y[i] -= L(k, i) * y[k];
+    y[i] *= inv_d[i];
+  }
+  MatW T = G.transpose();  // T = L^-1 G^T, row by row (a column-major axpy per term)
+  for (int i = 0; i < W; ++i) {
+    for (int k = 0; k < i; ++k) T.row(i) -= L(i, k) * T.row(k);
+    T.row(i) *= inv_d[i];
+  }
+  MatW Pn;  // T^T T, the lower half computed and mirrored (exactly symmetric)
+  for (int j = 0; j < W; ++j)
+    for (int i = j; i < W; ++i) Pn(j, i) = Pn(i, j) = T.col(i).dot(T.col(j));
+  w.dx.resize(W);
+  w.dx.noalias() = G * y;
+  w.Pn.resize(W, W);
+  w.Pn = Pn;
+  st->nis = ee - g.dot(y);
+  w.fused = true;
+  return true;
+}
 
 // Gating and whitening, block by block, on the factored prior (P_f = G G^T). With L_b L_b^T = R_b,
 // block b's whitened rows are A_b = L_b^-1 H_b G and e_b = L_b^-1 r_b, and its innovation
@@ -300,6 +472,45 @@ bool Ekf::gateAndWhiten(const BlockBatch& batch, const UpdateOptions& opt, Updat
         iso = 0.0;
     if (!(iso > 0.0 && std::isfinite(iso))) iso = 0.0;
   }
+  const bool gating = opt.gate_probability > 0.0 && opt.gate_probability < 1.0;
+  if (gating && (w.gate_probability != opt.gate_probability || w.gate_dim != bd)) {
+    w.gate = chi2Quantile(opt.gate_probability, bd);
+    w.gate_probability = opt.gate_probability;
+    w.gate_dim = bd;
+  }
+  if constexpr (BD == 2) {
+    // The fused path: every block on the same columns, whose free ones are all the free
+    // components in order, so A_b = H_b G with G lower triangular (one plane; fusedTwoRow).
+    if (uniform && nb > 0 && w.G_lower && nf >= kFusedMin && nf <= kFusedMax) {
+      // pos: the free columns' places in J; skip: fixed columns before the last free one, whose
+      // Jacobian entries are still checked for finiteness (the general path's A = H Gx would turn
+      // an Inf there into NaN; trailing fixed columns are left out by both paths).
+      int pos[kFusedMax], skip[kFusedMax];
+      int W = 0, nskip = 0, pending = 0;
+      bool in_order = true;
+      for (int j = 0; j < batch.width() && in_order; ++j) {
+        const int c = j < batch.shared ? j : batch.cols(0, j - batch.shared);
+        if (fixed_[c]) {
+          if (nskip + pending < kFusedMax) skip[nskip + pending] = j;
+          ++pending;
+          continue;
+        }
+        if (W >= nf || c != w.free[W] || nskip + pending > kFusedMax) in_order = false;
+        else pos[W++] = j, nskip += pending, pending = 0;
+      }
+      if (in_order && W == nf) {
+        switch (W) {
+          case 7: return fusedTwoRow<7>(batch, opt, st, pos, skip, nskip, iso);
+          case 8: return fusedTwoRow<8>(batch, opt, st, pos, skip, nskip, iso);
+          case 9: return fusedTwoRow<9>(batch, opt, st, pos, skip, nskip, iso);
+          case 10: return fusedTwoRow<10>(batch, opt, st, pos, skip, nskip, iso);
+          case 11: return fusedTwoRow<11>(batch, opt, st, pos, skip, nskip, iso);
+          case 12: return fusedTwoRow<12>(batch, opt, st, pos, skip, nskip, iso);
+          default: break;
+        }
+      }
+    }
+  }
   const double inv_s = iso > 0.0 ? 1.0 / std::sqrt(iso) : 1.0;
   if (uniform && nb > 0) {
     // The block's columns; trailing fixed ones (zero rows of Gx, the gauge) are left out.
@@ -318,12 +529,6 @@ bool Ekf::gateAndWhiten(const BlockBatch& batch, const UpdateOptions& opt, Updat
       for (int r = 0; r < bd; ++r)
         for (int j = 0; j < batch.own; ++j)
           w.A.row(b * bd + r) += batch.J(b * bd + r, batch.shared + j) * w.Gx.row(batch.cols(b, j));
-  }
-  const bool gating = opt.gate_probability > 0.0 && opt.gate_probability < 1.0;
-  if (gating && (w.gate_probability != opt.gate_probability || w.gate_dim != bd)) {
-    w.gate = chi2Quantile(opt.gate_probability, bd);
-    w.gate_probability = opt.gate_probability;
-    w.gate_dim = bd;
   }
   double ss = 0.0;
   int k = 0;
@@ -413,6 +618,7 @@ void Ekf::update(const BlockBatch& batch, const UpdateOptions& opt, UpdateStats*
         throw std::invalid_argument("Ekf::update: measurement batch has a column outside the state");
   // Non-finite residuals, Jacobians or covariances are detected block by block in gateAndWhiten.
   if (!factorPrior(st)) return;
+  w_.fused = false;
   const bool ok = bd == 2 ? gateAndWhiten<2>(batch, opt, st)
                           : bd == 6 ? gateAndWhiten<6>(batch, opt, st) : gateAndWhiten<Eigen::Dynamic>(batch, opt, st);
   if (!ok) return;
@@ -425,7 +631,9 @@ void Ekf::update(const BlockBatch& batch, const UpdateOptions& opt, UpdateStats*
   if (form == UpdateForm::Auto) form = mu > nf ? UpdateForm::Information : UpdateForm::Covariance;
   st->form_used = form;
   // In whitened units the measurements are e = W z + noise(I) with z = G^-1 (x - x^-) ~ N(0, I).
-  if (form == UpdateForm::Information) {
+  if (w.fused) {
+    // fusedTwoRow has done the information form (dx, Pn, nis).
+  } else if (form == UpdateForm::Information) {
     // M = I + W^T W (= I + G^T J G, J = sum_b H_b^T R_b^-1 H_b), M = L L^T;
     // dx = G M^-1 W^T e; P+ = G M^-1 G^T = T^T T with T = L^-1 G^T (Woodbury: (P^-1 + J)^-1).
     w.M.setIdentity(nf, nf);
@@ -461,7 +669,7 @@ void Ekf::update(const BlockBatch& batch, const UpdateOptions& opt, UpdateStats*
     w.Pn = w.G * C * w.G.transpose();
     w.Pn = (0.5 * (w.Pn + w.Pn.transpose())).eval();
   }
-  if (form == UpdateForm::Information)  // rankUpdate filled the lower half
+  if (form == UpdateForm::Information && !w.fused)  // rankUpdate filled the lower half
     for (int j = 0; j < nf; ++j)
       for (int i = 0; i < j; ++i) w.Pn(i, j) = w.Pn(j, i);
   if (!w.dx.allFinite() || !w.Pn.allFinite()) {

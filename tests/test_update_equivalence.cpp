@@ -112,6 +112,13 @@ TEST(UpdateEquivalence, MatchesTheReferenceUpdateOnFixedData) {
     cases.push_back(c);                                 // with the gauge fixed
     c.isotropic = false;
     cases.push_back(c);                                 // correlated R (reference inflation)
+    // The fused one-plane path (ekf.cpp fusedTwoRow): a fixed column between free ones (a known
+    // focal length, beta) with and without the gauge, isotropic and correlated R.
+    c.fixed = {6};
+    cases.push_back(c);
+    c.fixed = {6, 9}, c.isotropic = true;
+    cases.push_back(c);
+    c.isotropic = false;
     c.n = 40, c.blocks = 60, c.fixed = {7};
     cases.push_back(c);                                 // a point model's size
     c.bd = 6, c.blocks = 12, c.n = 19, c.fixed = {};
@@ -140,6 +147,21 @@ TEST(UpdateEquivalence, NonFiniteJacobianAnywhereSkipsTheUpdate) {
     EXPECT_EQ(st.used, 0);
     EXPECT_EQ(ekf.x(), p.x0);
   }
+}
+
+// The fused one-plane path leaves a fixed column out of its products; an Inf there must still
+// skip the update, as the general path's A = H G turns it into NaN.
+TEST(UpdateEquivalence, NonFiniteJacobianInAFixedColumnSkipsTheUpdate) {
+  Case c;
+  c.fixed = {6};
+  Problem p = make(c);
+  p.compact.J(2 * 17, 6) = std::numeric_limits<double>::infinity();
+  Ekf ekf(p.x0, p.P0, p.fixed);
+  UpdateStats st;
+  ekf.update(p.compact, UpdateOptions{}, &st);
+  EXPECT_FALSE(st.applied);
+  EXPECT_TRUE(st.health & kNonFiniteInput);
+  EXPECT_EQ(ekf.x(), p.x0);
 }
 
 TEST(UpdateEquivalence, ShiftedResidualEqualsTheDenseShift) {

@@ -177,6 +177,15 @@ class Ekf {
   bool factorPrior(UpdateStats* stats);
   template <int BD>
   bool gateAndWhiten(const BlockBatch& batch, const UpdateOptions& opt, UpdateStats* stats);
+  /// The fused two-row path (issue 15): blocks that all depend on the same W free columns, which
+  /// are the free components in order, under a lower-triangular G (Cholesky). Whitening, gate and
+  /// the information-form sums in one pass over the blocks with W-sized fixed types, and, when the
+  /// information form applies, the update itself (w_.fused set). `pos` maps the W free columns to
+  /// the batch's Jacobian columns, `skip` lists the nskip fixed columns between them (checked for
+  /// finiteness only); `iso` > 0 is the common R_b = iso I.
+  template <int W>
+  bool fusedTwoRow(const BlockBatch& batch, const UpdateOptions& opt, UpdateStats* stats, const int* pos,
+                   const int* skip, int nskip, double iso);
 
   Eigen::VectorXd x_;
   Eigen::MatrixXd P_;
@@ -202,6 +211,8 @@ class Ekf {
     Eigen::MatrixXd M;           ///< I + A^T A (information form)
     Eigen::LLT<Eigen::MatrixXd> mllt;
     Eigen::VectorXd g, y, dx;
+    bool G_lower = false;        ///< G is lower triangular (the Cholesky factor, not the LDLT's)
+    bool fused = false;          ///< fusedTwoRow has left dx and Pn (information form)
     Eigen::MatrixXd T, Pn;
     double gate = 0.0, gate_probability = -1.0;  ///< chi-square gate, cached per (probability, block size)
     int gate_dim = 0;
