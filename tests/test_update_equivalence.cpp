@@ -114,11 +114,11 @@ TEST(UpdateEquivalence, MatchesTheReferenceUpdateOnFixedData) {
     cases.push_back(c);                                 // correlated R (reference inflation)
     // The fused one-plane path (ekf.cpp fusedTwoRow): a fixed column between free ones (a known
     // focal length, beta) with and without the gauge, isotropic and correlated R.
-    c.fixed = {6};
-    cases.push_back(c);
-    c.fixed = {6, 9}, c.isotropic = true;
-    cases.push_back(c);
-    c.isotropic = false;
+    for (const std::vector<int>& fixed : {std::vector<int>{6}, std::vector<int>{6, 9}})
+      for (const bool isotropic : {true, false}) {
+        c.fixed = fixed, c.isotropic = isotropic;
+        cases.push_back(c);
+      }
     c.n = 40, c.blocks = 60, c.fixed = {7};
     cases.push_back(c);                                 // a point model's size
     c.bd = 6, c.blocks = 12, c.n = 19, c.fixed = {};
