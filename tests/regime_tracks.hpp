@@ -3,6 +3,7 @@
 #include <Eigen/Core>
 
 #include <algorithm>
+#include <cmath>
 #include <opencv2/core.hpp>
 #include <random>
 #include <vector>
@@ -20,7 +21,9 @@ struct RegimeTracks {
   Tracks tracks;
   io::Summary truth;
 };
-inline RegimeTracks regimeTracks(const render::RenderOptions& o, double noise_px, unsigned seed) {
+/// `ar_rho` > 0: each track's error drifts as AR(1), e_k = rho e_{k-1} + sqrt(1 - rho^2) g_k (a
+/// tracker's error); 0: independent noise (the same draws as before the option existed).
+inline RegimeTracks regimeTracks(const render::RenderOptions& o, double noise_px, unsigned seed, double ar_rho = 0.0) {
   render::Scene scene(o);
   RegimeTracks out;
   out.truth = scene.truth();
@@ -38,13 +41,16 @@ inline RegimeTracks regimeTracks(const render::RenderOptions& o, double noise_px
       for (int j = 0; j < 12; ++j) {
         const Eigen::Vector3d X = f.corners[0] + (i + 0.5) / 12 * (f.corners[1] - f.corners[0]) + (j + 0.5) / 12 * (f.corners[3] - f.corners[0]);
         bool alive = true, any = false;
+        Eigen::Vector2d e(0, 0);
         for (int k = 0; k < o.frames && alive; ++k) {
           const auto x = scene.project(X, k);
           alive = x && x->x() > 5 && x->y() > 5 && x->x() < o.width - 6 && x->y() < o.height - 6 &&
                   labels[k].at<uchar>(static_cast<int>(std::lround(x->y())), static_cast<int>(std::lround(x->x()))) ==
                       f.truth_index + 1;
           if (alive) {
-            t.frames[k].push_back({id, *x + Eigen::Vector2d(g(rng), g(rng))});
+            const Eigen::Vector2d gk(g(rng), g(rng));
+            e = any ? Eigen::Vector2d(ar_rho * e + std::sqrt(1.0 - ar_rho * ar_rho) * gk) : gk;
+            t.frames[k].push_back({id, *x + e});
             any = true;
           }
         }

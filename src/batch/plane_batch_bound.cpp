@@ -65,35 +65,74 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
   // Priors on the free camera components.
   for (int c = 0; c < 4; ++c)
     if (iC[c] >= 0 && opt.camera_prior_sd[c] > 0) S(iC[c], iC[c]) += 1.0 / (opt.camera_prior_sd[c] * opt.camera_prior_sd[c]);
-  // Frame 0: reference residuals (RadialCamera(ref) - z) / sigma.
-  for (const Observation& o : data.frames[0]) {
-    if (o.id < 0 || o.id >= P) continue;
-    Eigen::Vector2d r, Jb;
+  // Frame 0: reference residuals (RadialCamera(ref) - z) / sigma. `gidx` receives the kept
+  // columns of the observation's Jacobian `J` (q of them).
+  auto referenceRow = [&](const Observation& o, Eigen::Vector2d* r, int* gidx, Eigen::Matrix<double, 2, 7>* J) {
+    Eigen::Vector2d Jb;
     Eigen::Matrix2d Ju;
     Eigen::Matrix<double, 2, 4> Jc;
-    planeBatchReferenceResidual(at.ref[o.id], at.beta, at.camera, o.uv, data.sigma_uv, &r, &Ju, &Jb, &Jc);
-    int idx[7];
-    Eigen::Matrix<double, 2, 7> J;
+    planeBatchReferenceResidual(at.ref[o.id], at.beta, at.camera, o.uv, data.sigma_uv, r, &Ju, &Jb, &Jc);
     int q = 0;
     for (int a = 0; a < 2; ++a) {
-      idx[q] = 2 * o.id + a;
-      J.col(q++) = Ju.col(a);
+      gidx[q] = 2 * o.id + a;
+      J->col(q++) = Ju.col(a);
     }
     if (use_camera) {
       if (iBeta >= 0) {
-        idx[q] = iBeta;
-        J.col(q++) = Jb;
+        gidx[q] = iBeta;
+        J->col(q++) = Jb;
       }
       for (int c = 0; c < 4; ++c)
         if (iC[c] >= 0) {
-          idx[q] = iC[c];
-          J.col(q++) = Jc.col(c);
+          gidx[q] = iC[c];
+          J->col(q++) = Jc.col(c);
         }
     }
+    return q;
+  };
+  for (const Observation& o : data.frames[0]) {
+    if (o.id < 0 || o.id >= P) continue;
+    Eigen::Vector2d r;
+    int idx[7];
+    Eigen::Matrix<double, 2, 7> J;
+    const int q = referenceRow(o, &r, idx, &J);
     const Eigen::MatrixXd JtJ = J.leftCols(q).transpose() * J.leftCols(q);
     for (int a = 0; a < q; ++a)
       for (int b = 0; b < q; ++b) S(idx[a], idx[b]) += JtJ(a, b);
   }
+  // One observation at frame k >= 1: its whitened residual, motion Jacobian and the Jacobian of
+  // its kept columns (`gidx`, q of them); false when it cannot be projected.
+  auto frameRow = [&](int k, const Observation& o, Eigen::Vector2d* r, Eigen::Matrix<double, 2, 6>* Jm, int* gidx,
+                      Eigen::Matrix<double, 2, 10>* Jc, int* q) {
+    const int l = data.labels[o.id];
+    Eigen::Vector2d Jb;
+    Eigen::Matrix<double, 2, 3> JN;
+    Eigen::Matrix2d Ju;
+    Eigen::Matrix<double, 2, 4> Jcam;
+    if (planeBatchResidual(at.t[k], Eigen::Vector3d::Zero(), at.R[k], at.beta, at.N[l], at.ref[o.id], o.uv,
+                           data.sigma_uv, r, Jm, &Jb, &JN, &Ju, cam, cam ? &Jcam : nullptr) != MeasureStatus::Ok)
+      return false;
+    *q = 0;
+    if (iBeta >= 0) {
+      gidx[*q] = iBeta;
+      Jc->col((*q)++) = Jb;
+    }
+    for (int a = 0; a < 3; ++a)
+      if (iN[3 * l + a] >= 0) {
+        gidx[*q] = iN[3 * l + a];
+        Jc->col((*q)++) = JN.col(a);
+      }
+    for (int a = 0; a < 2; ++a) {
+      gidx[*q] = 2 * o.id + a;
+      Jc->col((*q)++) = Ju.col(a);
+    }
+    for (int a = 0; a < 4; ++a)
+      if (iC[a] >= 0) {
+        gidx[*q] = iC[a];
+        Jc->col((*q)++) = Jcam.col(a);
+      }
+    return true;
+  };
   // Frames k >= 1: accumulate the frame's block [motion (6) | kept columns it touches], then
   // eliminate its motion (Schur complement) into S.
   struct FrameBlock {
@@ -101,7 +140,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     Eigen::MatrixXd Hmc;
     Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt;
   };
-  std::vector<FrameBlock> blocks(opt.motion_covariance ? F + 1 : 0);
+  std::vector<FrameBlock> blocks(opt.motion_covariance || opt.track_clustered ? F + 1 : 0);
   std::vector<int> cols;
   for (int k = 1; k <= F; ++k) {
     const auto& obs = data.frames[k];
@@ -140,39 +179,17 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     Eigen::MatrixXd Hmc = Eigen::MatrixXd::Zero(6, c), Hcc = Eigen::MatrixXd::Zero(c, c);
     for (const Observation& o : obs) {
       if (o.id < 0 || o.id >= P) continue;
-      const int l = data.labels[o.id];
-      Eigen::Vector2d r, Jb;
+      Eigen::Vector2d r;
       Eigen::Matrix<double, 2, 6> Jm;
-      Eigen::Matrix<double, 2, 3> JN;
-      Eigen::Matrix2d Ju;
-      Eigen::Matrix<double, 2, 4> Jcam;
-      if (planeBatchResidual(at.t[k], Eigen::Vector3d::Zero(), at.R[k], at.beta, at.N[l], at.ref[o.id], o.uv,
-                             data.sigma_uv, &r, &Jm, &Jb, &JN, &Ju, cam, cam ? &Jcam : nullptr) != MeasureStatus::Ok) {
-        out.message = fmt::format("bound: point {} cannot be projected at frame {}", o.id, k);
-        return out;
-      }
       // The observation's kept columns (local indices) and their Jacobian.
       int idx[10];
       Eigen::Matrix<double, 2, 10> Jc;
       int q = 0;
-      if (iBeta >= 0) {
-        idx[q] = local(iBeta);
-        Jc.col(q++) = Jb;
+      if (!frameRow(k, o, &r, &Jm, idx, &Jc, &q)) {
+        out.message = fmt::format("bound: point {} cannot be projected at frame {}", o.id, k);
+        return out;
       }
-      for (int a = 0; a < 3; ++a)
-        if (iN[3 * l + a] >= 0) {
-          idx[q] = local(iN[3 * l + a]);
-          Jc.col(q++) = JN.col(a);
-        }
-      for (int a = 0; a < 2; ++a) {
-        idx[q] = local(2 * o.id + a);
-        Jc.col(q++) = Ju.col(a);
-      }
-      for (int a = 0; a < 4; ++a)
-        if (iC[a] >= 0) {
-          idx[q] = local(iC[a]);
-          Jc.col(q++) = Jcam.col(a);
-        }
+      for (int a = 0; a < q; ++a) idx[a] = local(idx[a]);
       Hmm += Jm.transpose() * Jm;
       const Eigen::MatrixXd JmtJc = Jm.transpose() * Jc.leftCols(q);
       const Eigen::MatrixXd JctJc = Jc.leftCols(q).transpose() * Jc.leftCols(q);
@@ -189,7 +206,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     const Eigen::MatrixXd red = Hcc - Hmc.transpose() * ldlt.solve(Hmc);
     for (int a = 0; a < c; ++a)
       for (int b = 0; b < c; ++b) S(cols[a], cols[b]) += red(a, b);
-    if (opt.motion_covariance) blocks[k] = {cols, Hmc, ldlt};
+    if (opt.motion_covariance || opt.track_clustered) blocks[k] = {cols, Hmc, ldlt};
   }
   // Null space and pseudo-inverse, on the matrix scaled to unit diagonal (parameters differ in
   // units). A parameter whose information is negligible against the largest (a plane under pure
@@ -221,6 +238,78 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
   out.scale = d;
   out.cov = d.asDiagonal() * pinv * d.asDiagonal();  // back to the original units
   out.ok = true;
+  out.clustered_N.assign(m, 1.0);
+  if (opt.track_clustered) {
+    // The track-clustered covariance of the global parameters (PlaneBatchBoundOptions), as
+    // V = sum_t (A g_t) (A g_t)^T with A = their rows of S+: only q x P numbers are kept.
+    std::vector<int> glob;
+    if (iBeta >= 0) glob.push_back(iBeta);
+    for (int i : iN)
+      if (i >= 0) glob.push_back(i);
+    for (int i : iC)
+      if (i >= 0) glob.push_back(i);
+    const int q = static_cast<int>(glob.size());
+    Eigen::MatrixXd A(q, n);
+    for (int a = 0; a < q; ++a) A.row(a) = out.cov.row(glob[a]);
+    Eigen::MatrixXd g = Eigen::MatrixXd::Zero(q, P);  // A g_t, one column per track
+    for (const Observation& o : data.frames[0]) {
+      if (o.id < 0 || o.id >= P) continue;
+      Eigen::Vector2d r;
+      int idx[7];
+      Eigen::Matrix<double, 2, 7> J;
+      const int nq = referenceRow(o, &r, idx, &J);
+      const Eigen::Matrix<double, 7, 1> v = J.transpose() * r;
+      for (int a = 0; a < nq; ++a) g.col(o.id) += A.col(idx[a]) * v[a];
+    }
+    for (int k = 1; k <= F; ++k) {
+      const FrameBlock& b = blocks[k];
+      if (b.cols.empty()) continue;  // a frame left out of the bound
+      // The frame's motion eliminated: an observation's reduced score is
+      // Jc^T r - Hmc^T Hmm^-1 Jm^T r, so A times it is A_c Jc^T r - W Jm^T r, W = A_c (Hmm^-1 Hmc)^T.
+      const int c = static_cast<int>(b.cols.size());
+      Eigen::MatrixXd Ac(q, c);
+      for (int a = 0; a < c; ++a) Ac.col(a) = A.col(b.cols[a]);
+      const Eigen::MatrixXd W = Ac * b.ldlt.solve(b.Hmc).transpose();  // q x 6
+      for (const Observation& o : data.frames[k]) {
+        if (o.id < 0 || o.id >= P) continue;
+        Eigen::Vector2d r;
+        Eigen::Matrix<double, 2, 6> Jm;
+        int idx[10];
+        Eigen::Matrix<double, 2, 10> Jc;
+        int nq = 0;
+        if (!frameRow(k, o, &r, &Jm, idx, &Jc, &nq)) continue;  // cannot happen: the first pass projected it
+          const Eigen::Matrix<double, 10, 1> v = Jc.transpose() * r;
+        for (int a = 0; a < nq; ++a) g.col(o.id) += A.col(idx[a]) * v[a];
+        g.col(o.id) -= W * (Jm.transpose() * r);
+      }
+    }
+    int tracks = 0;
+    for (int t = 0; t < P; ++t) tracks += !g.col(t).isZero(0.0);
+    if (tracks > 1) {
+      const Eigen::MatrixXd V = g * g.transpose() * (static_cast<double>(tracks) / (tracks - 1));
+      Eigen::VectorXd f = Eigen::VectorXd::Ones(q), ratio = Eigen::VectorXd::Zero(q);
+      for (int a = 0; a < q; ++a) {
+        const double c0 = out.cov(glob[a], glob[a]);
+        if (c0 > 0 && std::isfinite(V(a, a))) {
+          ratio[a] = V(a, a) / c0;
+          f[a] = std::sqrt(std::max(1.0, ratio[a]));
+        }
+      }
+      for (int a = 0; a < q; ++a) {
+        out.cov.row(glob[a]) *= f[a];
+        out.cov.col(glob[a]) *= f[a];
+        if (glob[a] == iBeta) {
+          out.clustered_beta = f[a];
+          out.clustered_beta_ratio = ratio[a];
+        }
+        for (int j = 0; j < m; ++j)
+          for (int e = 0; e < 3; ++e)
+            if (iN[3 * j + e] == glob[a]) out.clustered_N[j] = std::max(out.clustered_N[j], f[a]);
+        for (int e = 0; e < 4; ++e)
+          if (iC[e] == glob[a]) out.clustered_camera[e] = f[a];
+      }
+    }
+  }
   const Eigen::MatrixXd& cov = out.cov;
   out.beta_estimable = iBeta >= 0 && out.estimable(1.0, {}, Eigen::Vector4d::Zero());
   out.var_beta = iBeta >= 0 ? cov(iBeta, iBeta) : 0.0;

@@ -3,6 +3,7 @@
 #include "rsfm/units.hpp"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
 #include <cmath>
@@ -366,12 +367,16 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   bopt.motion_covariance = true;
   bopt.skip_undetermined_frames = true;
   bopt.hold_beta = known_focal;
+  bopt.track_clustered = ro.track_clustered_sd;
   const PlaneBatchBound b = planeBatchBound(p.data, st, bopt);
   if (!b.ok) {
     r.message = "the refinement converged but its uncertainty could not be computed: " + b.message;
     return r;
   }
   r.null_dim = b.null_dim;
+  r.clustered_focal_factor = b.clustered_beta;
+  r.clustered_focal_ratio = b.clustered_beta_ratio;
+  r.clustered_plane_factor = b.clustered_N;
   r.undetermined_frames = b.skipped_frames;
   // Determinacy (rsfm/determinacy.hpp).
   const double beta = st.beta, f = s / beta;
@@ -640,6 +645,8 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
                           r.camera[3], std::sqrt(std::max(0.0, r.cov_camera(3, 3))), res.message, r.iterations, r.tracks,
                           r.observations, r.relabelled, r.sigma_px);
   r.message += fmt::format(", correlation inflation {:.1f}", r.correlation_inflation);
+  r.message += fmt::format(", sd widened by the track-clustered check: focal x{:.2f}, planes x{:.2f}", r.clustered_focal_factor,
+                           fmt::join(r.clustered_plane_factor, "/x"));
   r.seconds = steadySeconds() - t_start;
   return r;
 }

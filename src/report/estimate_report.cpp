@@ -222,6 +222,8 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                          {"sigma_px", rf.sigma_px},
                          {"robust_sigma_px", rf.robust_sigma_px},
                          {"correlation_inflation", rf.correlation_inflation},
+                         {"clustered_focal_factor", rf.clustered_focal_factor},
+                         {"clustered_plane_factor", rf.clustered_plane_factor},
                          {"tracks", rf.tracks},
                          {"observations", rf.observations},
                          {"relabelled_outliers", rf.relabelled},

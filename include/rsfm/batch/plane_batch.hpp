@@ -142,6 +142,16 @@ struct PlaneBatchBoundOptions {
   /// are left out and listed in skipped_frames; false: such a frame makes the bound fail.
   bool skip_undetermined_frames = false;
   bool hold_beta = false;  ///< beta known: not a parameter (beta_estimable false, var_beta 0)
+  /// Widen the bound of beta, the planes and the camera where the tracks' scores say it is too
+  /// narrow: the track-clustered ("sandwich") covariance V = S+ (P/(P-1) sum_t g_t g_t^T) S+
+  /// ([W80] for the estimator; clustered by track as in [CGM11]), g_t = sum over track t's
+  /// observations of J~^T r (J~ the observation's Jacobian with the frame's motion eliminated,
+  /// r the whitened residual at `at`, which must be the optimum). It holds whatever the errors'
+  /// correlation along a track (a tracker's drift) and their spread, since each track's errors
+  /// enter through its own score. Each of those parameters' rows and columns of cov are scaled
+  /// by sqrt(max(1, V_ii / cov_ii)) (never narrowed); the factors are in PlaneBatchBound's
+  /// clustered_* fields. The motions' covariances stay the bound's.
+  bool track_clustered = false;
 };
 struct PlaneBatchBound {
   bool ok = false;
@@ -157,6 +167,12 @@ struct PlaneBatchBound {
   Eigen::Matrix4d cov_camera = Eigen::Matrix4d::Zero();  ///< free components only (others zero)
   std::vector<Eigen::Matrix<double, 6, 6>> cov_motion;   ///< frames 0..F (frame 0 and skipped frames zero)
   std::vector<int> skipped_frames;
+  /// With track_clustered: the factor sqrt(max(1, V_ii / cov_ii)) applied to beta's sd, the
+  /// largest applied to a plane's N components, and per camera component (1: not widened).
+  double clustered_beta = 1.0;
+  double clustered_beta_ratio = 0.0;  ///< V / cov for beta before widening (0: not computed)
+  std::vector<double> clustered_N;
+  std::array<double, 4> clustered_camera{1, 1, 1, 1};
   /// Whether a functional of (beta, N..., camera) is estimable: `g_beta`, per plane `g_N` (3) and
   /// `g_camera` (4) its gradient.
   bool estimable(double g_beta, const std::vector<Eigen::Vector3d>& g_N, const Eigen::Vector4d& g_camera) const;

@@ -17,7 +17,9 @@
 //
 // Uncertainty: the Cramer-Rao bound at the solution (rsfm::planeBatchBound, with its null space),
 // with the noise set to the inlier residuals' actual spread sqrt(sum r^2 / (m - n)), inflated for
-// their correlation along tracks (RefineResult::correlation_inflation). A quantity is
+// their correlation along tracks (RefineResult::correlation_inflation), and for beta, the planes
+// and the camera widened where the track-clustered covariance of the tracks' own scores is larger
+// ([W80], [CGM11]; RefineOptions::track_clustered_sd, docs/estimate.md section 4). A quantity is
 // determined when it is estimable and its sd is within the limits of rsfm/determinacy.hpp; an
 // undetermined focal length is reported with the interval the data support instead of a number.
 // No I/O, no OpenCV.
@@ -57,6 +59,10 @@ struct RefineOptions {
   /// (a principal point the data cannot place makes the focal length less certain, not free).
   double principal_point_prior_sd = 0.03;
   double distortion_prior_sd = 0.25;
+  /// Check the reported sds of the focal length, the planes and the camera against the tracks'
+  /// own scores (the track-clustered sandwich covariance, PlaneBatchBoundOptions::track_clustered)
+  /// and widen each where it is larger. false: the inflated bound alone (for comparison).
+  bool track_clustered_sd = true;
 };
 
 struct RefineResult {
@@ -77,6 +83,13 @@ struct RefineResult {
   /// autocorrelation up to its first non-positive lag): tracker errors drift smoothly, so a
   /// track's observations are not independent. Every covariance is sigma_px^2 times this.
   double correlation_inflation = 1.0;
+  /// The track-clustered check of those covariances (PlaneBatchBoundOptions::track_clustered,
+  /// docs/estimate.md section 4): the factor by which it widened the focal length's sd, and per
+  /// plane the largest factor on its N components (1: the inflated bound already covered what
+  /// the tracks' scores show).
+  double clustered_focal_factor = 1.0;
+  double clustered_focal_ratio = 0.0;  ///< its variance ratio (clustered / inflated bound) before max(1, .)
+  std::vector<double> clustered_plane_factor;
   double robust_sigma_px = 0.0;  ///< 1.4826 MAD of the final residuals
   std::vector<int> labels;    ///< per track id after relabelling (outliers -1)
   int relabelled = 0;         ///< tracks relabelled outliers
