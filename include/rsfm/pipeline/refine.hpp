@@ -90,6 +90,11 @@ struct RefineResult {
   double clustered_focal_factor = 1.0;
   double clustered_focal_ratio = 0.0;  ///< its variance ratio (clustered / inflated bound) before max(1, .)
   std::vector<double> clustered_plane_factor;
+  /// When the focal length is not determined and its profile was run: per plane, the largest
+  /// angle (deg) between the estimate's normal and the profile's over the focal lengths the data
+  /// support; added to the normal's variance as a 95 % half-width (docs/estimate.md section 4).
+  /// Empty when no profile was run.
+  std::vector<double> plane_profile_spread_deg;
   double robust_sigma_px = 0.0;  ///< 1.4826 MAD of the final residuals
   std::vector<int> labels;    ///< per track id after relabelling (outliers -1)
   int relabelled = 0;         ///< tracks relabelled outliers
