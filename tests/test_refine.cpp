@@ -228,6 +228,46 @@ TEST(Refine, TheTrackClusteredCheckWidensWhatThePooledInflationMisses) {
   EXPECT_GT(c.mean_factor, 1.04);
 }
 
+TEST(Refine, APrincipalPointTheDataDoNotDetermineIsHeldAtTheCentre) {
+  // The cube scene turned 15 deg about a vertical axis (50 frames of 0.3 deg), 0.5 px noise, the
+  // principal point at the image centre: its y is not placed within 1 % of the image (sd 15 px,
+  // x 3.7 px). Held, it sits exactly at the nominal centre, still with a variance in the bound
+  // (its prior's, narrowed by what the data say), so the focal length's sd is no smaller than
+  // with the principal point given; not held, it stays where the solver stopped.
+  const Synthetic s = makeTracks(100, 0.5, Eigen::Vector2d::Zero(), 0.0, 0.0, 50, 0.3);
+  EstimateOptions o;
+  o.refine.estimate_distortion = false;
+  o.homography_start = false;
+  o.filter.focal0_px = 0.8 * s.focal;
+  auto focalSd = [](const EstimateResult& r) {
+    const TrackFrame& last = r.refined.state.frames.back();
+    return r.refined.state.scale_px * std::sqrt(last.var_beta) / (last.beta * last.beta);
+  };
+  const double sc = 256.0;  // s = max(width, height) / 2
+  const EstimateResult held = estimate(s.tracks, o);
+  ASSERT_TRUE(held.refined.ok) << held.refined.message;
+  const Eigen::Vector2d centre(s.tracks.image.cx, s.tracks.image.cy);
+  EXPECT_FALSE(held.refined.camera_free[0] || held.refined.camera_free[1]);
+  EXPECT_EQ(held.refined.principal_point_px, centre);
+  EXPECT_NE(held.refined.why.find("held at"), std::string::npos) << held.refined.why;
+  const double sd_y = sc * std::sqrt(held.refined.cov_camera(1, 1));
+  EXPECT_GT(sd_y, 0.01 * 512);                   // not determined ...
+  EXPECT_LE(sd_y, 0.03 * 512 * (1 + 1e-9));      // ... and no wider than its prior
+  EstimateOptions given = o;
+  given.principal_point = centre;
+  const EstimateResult known = estimate(s.tracks, given);
+  ASSERT_TRUE(known.refined.ok) << known.refined.message;
+  std::printf("focal sd: principal point held %.3f px, given %.3f px; held y sd %.1f px\n", focalSd(held), focalSd(known), sd_y);
+  EXPECT_GE(focalSd(held), focalSd(known));
+  EstimateOptions free = o;
+  free.refine.hold_undetermined_principal_point = false;
+  const EstimateResult moved = estimate(s.tracks, free);
+  ASSERT_TRUE(moved.refined.ok) << moved.refined.message;
+  EXPECT_TRUE(moved.refined.camera_free[0]);
+  EXPECT_FALSE(moved.refined.camera_determined[0] && moved.refined.camera_determined[1]);
+  EXPECT_GT((moved.refined.principal_point_px - centre).norm(), 0.1);
+}
+
 TEST(Refine, PureRotationDeterminesNoPlane) {
   // The cube's tracks turned about the centre of projection: every frame is a homography K R K^-1
   // of the first (the scene's rotations, no translation).
@@ -319,3 +359,4 @@ TEST(Refine, AFailedRefinementKeepsTheOnlineEstimateAndSaysWhy) {
 
 }  // namespace
 }  // namespace rsfm
+

@@ -203,6 +203,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   }
   const std::vector<double> start_res = pooled(residualsPx(p, p.start, s, false));
   const double sigma0 = std::max(1e-3, robustSd(start_res));
+  double sigma_loss = sigma0;  // the noise (px) that scaled the last accepted solve's loss
   {
     double ss = 0;
     for (double x : start_res) ss += x * x;
@@ -319,6 +320,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       if (solved) {
         p = std::move(q);
         res = std::move(res2);
+        sigma_loss = sigma1;
         r.iterations += res.iterations;
         for (int id = 0; id < n_ids; ++id)
           if (lab[id] == -1 && selected[id] >= 0) r.labels[id] = -1;
@@ -328,47 +330,82 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       }
     }
   }
-  // The final residuals' spread, and their correlation along tracks, scale the bound.
-  const PlaneBatchState& st = res.state;
-  const auto per = residualsPx(p, st, s, true);
-  const std::vector<double> all = pooled(per);
-  double ss = 0;
-  for (double x : all) ss += x * x;
-  const int n_cam = static_cast<int>(std::count(r.camera_free.begin(), r.camera_free.end(), true));
-  const int n_params = 6 * (F - 1) + 1 + (3 * m - 1) + 2 * static_cast<int>(p.track_of_point.size()) + n_cam;
-  const int n_res = static_cast<int>(all.size());
-  r.final_rms_px = all.empty() ? 0.0 : std::sqrt(ss / all.size());
-  r.sigma_px = n_res > n_params ? std::sqrt(ss / (n_res - n_params)) : r.final_rms_px;
-  r.robust_sigma_px = robustSd(all);
-  r.tracks = static_cast<int>(p.track_of_point.size());
-  r.observations = n_res / 2;
-  {
-    // Pooled autocorrelation of the residuals along tracks (x and y separately), lags 1..50,
-    // summed up to its first non-positive value.
-    double c0 = 0;
-    for (double x : all) c0 += x * x;
-    double sum_rho = 0;
-    for (int lag = 1; lag <= 1000 && c0 > 0; ++lag) {
-      double c = 0;
-      for (const auto& v : per)  // v = (x0, y0, x1, y1, ...)
-        for (std::size_t i = 0; i + 2 * lag + 1 < v.size(); i += 2)
-          c += v[i] * v[i + 2 * lag] + v[i + 1] * v[i + 2 * lag + 1];
-      const double rho = c / c0;
-      if (!(rho > 0)) break;
-      sum_rho += rho;
+  // The final residuals' spread, and their correlation along tracks, scale the bound; the bound
+  // treats the camera components in `bound_camera` as parameters (with their priors).
+  std::vector<std::vector<double>> per;
+  double ss = 0, sigma_final = 0;
+  auto spreadAndBound = [&](const PlaneBatchState& st, const std::array<bool, 4>& bound_camera) {
+    per = residualsPx(p, st, s, true);
+    const std::vector<double> all = pooled(per);
+    ss = 0;
+    for (double x : all) ss += x * x;
+    const int n_cam = static_cast<int>(std::count(r.camera_free.begin(), r.camera_free.end(), true));
+    const int n_params = 6 * (F - 1) + 1 + (3 * m - 1) + 2 * static_cast<int>(p.track_of_point.size()) + n_cam;
+    const int n_res = static_cast<int>(all.size());
+    r.final_rms_px = all.empty() ? 0.0 : std::sqrt(ss / all.size());
+    r.sigma_px = n_res > n_params ? std::sqrt(ss / (n_res - n_params)) : r.final_rms_px;
+    r.robust_sigma_px = robustSd(all);
+    r.tracks = static_cast<int>(p.track_of_point.size());
+    r.observations = n_res / 2;
+    {
+      // Pooled autocorrelation of the residuals along tracks (x and y separately), lags 1..50,
+      // summed up to its first non-positive value.
+      double c0 = 0;
+      for (double x : all) c0 += x * x;
+      double sum_rho = 0;
+      for (int lag = 1; lag <= 1000 && c0 > 0; ++lag) {
+        double c = 0;
+        for (const auto& v : per)  // v = (x0, y0, x1, y1, ...)
+          for (std::size_t i = 0; i + 2 * lag + 1 < v.size(); i += 2)
+            c += v[i] * v[i + 2 * lag] + v[i + 1] * v[i + 2 * lag + 1];
+        const double rho = c / c0;
+        if (!(rho > 0)) break;
+        sum_rho += rho;
+      }
+      r.correlation_inflation = 1 + 2 * sum_rho;
     }
-    r.correlation_inflation = 1 + 2 * sum_rho;
+    sigma_final = r.sigma_px * std::sqrt(r.correlation_inflation);
+    p.data.sigma_uv = sigma_final / s;
+    PlaneBatchBoundOptions bopt;
+    bopt.camera_free = bound_camera;
+    bopt.camera_prior_sd = bo.camera_prior_sd;
+    bopt.motion_covariance = true;
+    bopt.skip_undetermined_frames = true;
+    bopt.hold_beta = known_focal;
+    bopt.track_clustered = ro.track_clustered_sd;
+    return planeBatchBound(p.data, st, bopt);
+  };
+  const double pp_limit = kDeterminedPrincipalPointSdFraction * fmax;
+  std::array<bool, 4> bound_camera = r.camera_free;
+  PlaneBatchBound b = spreadAndBound(res.state, bound_camera);
+  if (ro.hold_undetermined_principal_point && b.ok && r.camera_free[0] &&
+      !(b.camera_estimable[0] && b.camera_estimable[1] &&
+        s * std::sqrt(std::max({0.0, b.cov_camera(0, 0), b.cov_camera(1, 1)})) <= pp_limit)) {
+    // A principal point the data do not determine is where the optimizer stopped in a flat valley
+    // (box.mp4's overlapping windows: 288-365 px in x from nearly the same frames, and the focal
+    // length following it): held at the nominal centre and the rest solved again from there. Its
+    // prior stays in the bound, so its uncertainty still widens the focal length's sd.
+    const double sd_x = s * std::sqrt(std::max(0.0, b.cov_camera(0, 0))), sd_y = s * std::sqrt(std::max(0.0, b.cov_camera(1, 1)));
+    const Eigen::Vector2d at(cx + s * res.state.camera[0], cy + s * res.state.camera[1]);
+    const std::array<bool, 4> free_before = r.camera_free;
+    r.camera_free[0] = r.camera_free[1] = false;
+    bo.camera_free = r.camera_free;
+    p.start = res.state;
+    resetHeld(&p.start);
+    PlaneBatchResult rh;
+    if (solve(p, sigma_loss, &rh)) {
+      r.iterations += rh.iterations;
+      res = std::move(rh);
+      why.push_back(fmt::format("principal point not determined (sd {:.1f}, {:.1f} px at ({:.0f}, {:.0f}) px); held at ({:.1f}, "
+                                "{:.1f}) with its prior sd {:.0f} px in the bound",
+                                sd_x, sd_y, at.x(), at.y(), cx, cy, s * bo.camera_prior_sd[0]));
+      b = spreadAndBound(res.state, bound_camera);
+    } else {
+      r.camera_free = free_before;
+      bo.camera_free = r.camera_free;
+    }
   }
-  const double sigma_final = r.sigma_px * std::sqrt(r.correlation_inflation);
-  p.data.sigma_uv = sigma_final / s;
-  PlaneBatchBoundOptions bopt;
-  bopt.camera_free = r.camera_free;
-  bopt.camera_prior_sd = bo.camera_prior_sd;
-  bopt.motion_covariance = true;
-  bopt.skip_undetermined_frames = true;
-  bopt.hold_beta = known_focal;
-  bopt.track_clustered = ro.track_clustered_sd;
-  const PlaneBatchBound b = planeBatchBound(p.data, st, bopt);
+  const PlaneBatchState& st = res.state;
   if (!b.ok) {
     r.message = "the refinement converged but its uncertainty could not be computed: " + b.message;
     return r;
@@ -519,14 +556,29 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       const double unit = r.sigma_px * r.sigma_px * r.correlation_inflation;
       const double limit = chi2Quantile(0.95, 1.0);
       PlaneBatchOptions po = bo;
+      // The profile maximizes over every nuisance parameter, a principal point held because the
+      // data do not determine it included (free with its prior, as before the hold): held, the
+      // profile would be conditional on the centre and narrower than the data allow.
+      po.camera_free = bound_camera;
       po.hold_beta = true;
       po.max_iterations = 50;
       po.compute_covariance = false;
       p.data.sigma_uv = sigma_final / s;
       std::vector<std::pair<double, double>> profile;  // (focal, residual increase over the optimum's)
       std::vector<std::vector<Eigen::Vector3d>> profile_N;  // the planes at each step
+      // The profile's own value at the estimate is its baseline (the optimum's residual when
+      // nothing was held; lower when the principal point was: it is free here).
+      PlaneBatchState base = st;
+      double ss_base = ss;
+      if (po.camera_free != r.camera_free) {
+        const PlaneBatchResult pr = solvePlaneBatch(p.data, st, po);
+        r.iterations += pr.iterations;
+        double ssk = 0;
+        for (double x : pooled(residualsPx(p, pr.state, s, true))) ssk += x * x;
+        if (std::isfinite(ssk)) ss_base = ssk, base = pr.state;
+      }
       for (const double step : {1.0 / ratio, ratio}) {
-        PlaneBatchState cur = st;
+        PlaneBatchState cur = base;
         for (double fk = f * step; fk >= lo / std::sqrt(ratio) && fk <= hi * std::sqrt(ratio); fk *= step) {
           cur.beta = s / fk;
           const PlaneBatchResult pr = solvePlaneBatch(p.data, cur, po);
@@ -534,7 +586,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
           double ssk = 0;
           for (double x : pooled(residualsPx(p, pr.state, s, true))) ssk += x * x;
           if (!std::isfinite(ssk)) break;
-          profile.emplace_back(fk, (ssk - ss) / unit);
+          profile.emplace_back(fk, (ssk - ss_base) / unit);
           profile_N.push_back(pr.state.N);
           cur = pr.state;
         }
@@ -604,7 +656,6 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
                                                             : "")
                                           : fmt::format("plane {} is in the null space (e.g. pure rotation: no parallax)", j));
   }
-  const double pp_limit = kDeterminedPrincipalPointSdFraction * fmax;
   for (int c = 0; c < 4; ++c) {
     if (!r.camera_free[c]) continue;
     const double sd = std::sqrt(std::max(0.0, b.cov_camera(c, c))) * (c < 2 ? s : 1.0);

@@ -59,6 +59,11 @@ struct RefineOptions {
   /// (a principal point the data cannot place makes the focal length less certain, not free).
   double principal_point_prior_sd = 0.03;
   double distortion_prior_sd = 0.25;
+  /// A principal point the data do not determine (its sd above determinacy.hpp's limit after the
+  /// outlier stage) is held at the nominal centre and the rest solved again, its prior sd kept in
+  /// the bound (docs/estimate.md section 4): the estimate then does not depend on where the
+  /// optimizer stopped in a flat valley. false: it stays at that point, reported not determined.
+  bool hold_undetermined_principal_point = true;
   /// Check the reported sds of the focal length, the planes and the camera against the tracks'
   /// own scores (the track-clustered sandwich covariance, PlaneBatchBoundOptions::track_clustered)
   /// and widen each where it is larger. false: the inflated bound alone (for comparison).
