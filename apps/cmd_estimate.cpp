@@ -410,8 +410,7 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
     if (s["focal_px"].is_null())
       fmt::print(stderr, "estimate: {} frames, focal length not determined{}", res.frames.size(),
                  s.contains("focal_interval_px")
-                     ? fmt::format(" (the data support {:.0f}-{:.0f} px)", s["focal_interval_px"][0].get<double>(),
-                                   s["focal_interval_px"][1].get<double>())
+                     ? fmt::format(" (the data support {})", io::focalIntervalText(s["focal_interval_px"]))
                      : "");
     else
       fmt::print(stderr, "estimate: {} frames, focal {:.1f} {}", res.frames.size(), s["focal_px"].get<double>(),
@@ -476,8 +475,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
         summary["focal_px"].is_null()
             ? std::string("focal length not determined") +
                   (summary.contains("focal_interval_px")
-                       ? fmt::format(" (the data support {:.0f}-{:.0f} px)", summary["focal_interval_px"][0].get<double>(),
-                                     summary["focal_interval_px"][1].get<double>())
+                       ? fmt::format(" (the data support {})", io::focalIntervalText(summary["focal_interval_px"]))
                        : "")
             : fmt::format("focal {:.1f} +- {:.1f} px (from the motion check)", summary["focal_px"].get<double>(),
                           summary["focal_sd_px"].get<double>());

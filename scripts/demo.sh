@@ -26,8 +26,10 @@ if [ -f "$BOX_GZ" ]; then
 import json, sys
 s = json.load(open(sys.argv[1]))
 if s.get("focal_px") is None:  # reported not determined: the interval the data support
-    lo, hi = s.get("focal_interval_px", [float("nan")] * 2)
-    focal = f"focal not determined ({lo:.0f}-{hi:.0f} px supported)"
+    lo, hi = s.get("focal_interval_px", [None, None])  # null: the data do not bound that side
+    span = (f"{lo:.0f}-{hi:.0f} px" if hi is not None else f"at least {lo:.0f} px") if lo is not None else \
+           (f"at most {hi:.0f} px" if hi is not None else "any focal length")
+    focal = f"focal not determined ({span} supported)"
 else:
     focal = f"focal {s['focal_px']:.1f} +- {s['focal_sd_px']:.1f} px"
 print(f"   planes {len(s['planes'])}, tracks per plane {s['plane_tracks']}, outliers {s['tracks']['outliers']}, {focal}")

@@ -9,6 +9,7 @@
 #include <string>
 
 #include "rsfm/io/atomic_file.hpp"
+#include "rsfm/io/json_text.hpp"
 
 namespace fs = std::filesystem;
 using rsfm::io::AtomicFileSet;
@@ -185,3 +186,25 @@ TEST(OutputDir, AnOutputFromBeforeTheMarkerIsRecognisedByItsFiles) {
   OutputDir od;
   EXPECT_NE(od.open(d), "") << "a summary.json that is not rsfm's";
 }
+
+namespace rsfm {
+namespace {
+
+TEST(SummaryFields, AnUnboundedFocalIntervalSideIsNull) {
+  // docs/outputs.md: focal_interval_px [lo, hi], a side the data do not limit null.
+  const nlohmann::json any = io::focalIntervalJson(0.0, INFINITY);
+  EXPECT_EQ(any.dump(), "[null,null]");
+  EXPECT_EQ(io::focalIntervalText(any), "any focal length");
+  EXPECT_EQ(io::focalIntervalBound(any, 0), 0.0);
+  EXPECT_TRUE(std::isinf(io::focalIntervalBound(any, 1)));
+  const nlohmann::json above = io::focalIntervalJson(192.0, INFINITY);
+  EXPECT_EQ(above.dump(), "[192.0,null]");
+  EXPECT_EQ(io::focalIntervalText(above), "at least 192 px");
+  const nlohmann::json both = io::focalIntervalJson(313.2, 674.4);
+  EXPECT_EQ(io::focalIntervalText(both, "&ndash;"), "313&ndash;674 px");
+  EXPECT_EQ(io::focalIntervalBound(both, 1), 674.4);
+  EXPECT_EQ(io::focalIntervalText(nlohmann::json::array({1.0})), "");
+}
+
+}  // namespace
+}  // namespace rsfm

@@ -309,6 +309,10 @@ TEST(Refine, PureTranslationDeterminesNeitherFocalLengthNorTilt) {
   ASSERT_TRUE(r.refined.focal_interval_px.has_value());
   EXPECT_LE((*r.refined.focal_interval_px)[0], s.focal);
   EXPECT_GE((*r.refined.focal_interval_px)[1], s.focal);
+  // Nothing rotates: no focal length is excluded, not even beyond the 0.3-3 x range the profile
+  // searches (tele-translate: 2500 px on a 640 px image).
+  EXPECT_EQ((*r.refined.focal_interval_px)[0], 0.0);
+  EXPECT_TRUE(std::isinf((*r.refined.focal_interval_px)[1]));
   for (bool d : r.refined.plane_determined) EXPECT_FALSE(d);
   EXPECT_NE(r.refined.why.find("only translates"), std::string::npos) << r.refined.why;
 }

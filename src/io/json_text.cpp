@@ -27,4 +27,22 @@ nlohmann::json parseJsonText(const std::string& text, const std::string& source)
 
 nlohmann::json finiteOrNull(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
 
+nlohmann::json focalIntervalJson(double lo, double hi) {
+  return nlohmann::json::array({lo > 0 && std::isfinite(lo) ? nlohmann::json(lo) : nlohmann::json(nullptr), finiteOrNull(hi)});
+}
+
+double focalIntervalBound(const nlohmann::json& iv, int side) {
+  if (!iv.is_array() || iv.size() != 2 || !iv[side].is_number()) return side == 0 ? 0.0 : INFINITY;
+  return iv[side].get<double>();
+}
+
+std::string focalIntervalText(const nlohmann::json& iv, const char* dash) {
+  if (!iv.is_array() || iv.size() != 2) return "";
+  const bool has_lo = iv[0].is_number(), has_hi = iv[1].is_number();
+  if (has_lo && has_hi) return fmt::format("{:.0f}{}{:.0f} px", iv[0].get<double>(), dash, iv[1].get<double>());
+  if (has_lo) return fmt::format("at least {:.0f} px", iv[0].get<double>());
+  if (has_hi) return fmt::format("at most {:.0f} px", iv[1].get<double>());
+  return "any focal length";
+}
+
 }  // namespace rsfm::io

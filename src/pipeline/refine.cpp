@@ -527,17 +527,23 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   }
   if (!r.focal_determined && !known_focal) {
     // The interval the data support: the 95 % interval of beta (in which the model is nearly
-    // linear: [AS99] eq. 7) mapped to f = s / beta, within the range a camera's focal length can
-    // have (0.3-3 x the larger image side); the whole range when nothing rotates or beta is in
-    // the null space.
+    // linear: [AS99] eq. 7) mapped to f = s / beta, widened by the profile below; unbounded when
+    // nothing rotates or beta is in the null space. [lo, hi] is where the profile searches.
     const double lo = 0.3 * fmax, hi = 3.0 * fmax;
     const double sb = std::sqrt(std::max(0.0, b.var_beta));
     const double blo = beta - 1.96 * sb, bhi = beta + 1.96 * sb;
+    // A side the data do not limit is unbounded (0 below, infinity above; null in summary.json):
+    // nothing rotating, beta in the null space, a linear interval reaching beta <= 0, or a profile
+    // still supported at the last step it explored on that side. The range 0.3-3 x the larger
+    // image side is where the profile searches, not a bound the data set (tele-translate's 2500 px
+    // on a 640 px image lies beyond it).
     r.focal_interval_px = rotates && b.beta_estimable
-                              ? std::array<double, 2>{std::max(lo, s / bhi), blo > 0 ? std::min(hi, s / blo) : hi}
-                              : std::array<double, 2>{lo, hi};
-    // An interval wholly outside the range (the optimum far beyond it, e.g. 441000 px): the range.
-    if ((*r.focal_interval_px)[0] > (*r.focal_interval_px)[1]) r.focal_interval_px = std::array<double, 2>{lo, hi};
+                              ? std::array<double, 2>{s / bhi, blo > 0 ? s / blo : INFINITY}
+                              : std::array<double, 2>{0.0, INFINITY};
+    // An interval inverted or wholly beyond the range (the optimum far beyond it, e.g. 441000 px,
+    // where the linearization says nothing): unbounded.
+    if (!((*r.focal_interval_px)[0] <= (*r.focal_interval_px)[1]) || (*r.focal_interval_px)[0] > hi)
+      r.focal_interval_px = std::array<double, 2>{0.0, INFINITY};
     if (rotates && b.beta_estimable) {
       // That interval is local to this optimum. The focal length's profile over the whole range
       // widens it where the data fit as well elsewhere: from the optimum outwards, one solve per
@@ -600,16 +606,22 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
         // The solver stopped in a local optimum, so the search is not global either: no part of
         // the range can be excluded (a profile around the better point excluded the truth on
         // the test's seed 32: 203-246 px, truth 512 px).
-        iv = {lo, hi};
+        iv = {0.0, INFINITY};
         why.push_back(fmt::format("the estimate {:.0f} px is a local optimum ({:.0f} px fits better by {:.1f} in chi2 units): "
-                                  "no focal length in {:.0f}-{:.0f} px is excluded",
-                                  f, best_f, -best_d, lo, hi));
+                                  "no focal length is excluded",
+                                  f, best_f, -best_d));
       } else {
-        for (const auto& [fk, d] : profile)
+        double f_min = INFINITY, f_max = 0.0, d_at_min = 0.0, d_at_max = 0.0;  // the steps explored farthest out
+        for (const auto& [fk, d] : profile) {
           if (d <= limit) {
-            iv[0] = std::max(lo, std::min(iv[0], fk / std::sqrt(ratio)));
-            iv[1] = std::min(hi, std::max(iv[1], fk * std::sqrt(ratio)));
+            iv[0] = std::min(iv[0], fk / std::sqrt(ratio));
+            iv[1] = std::max(iv[1], fk * std::sqrt(ratio));
           }
+          if (fk < f_min) f_min = fk, d_at_min = d;
+          if (fk > f_max) f_max = fk, d_at_max = d;
+        }
+        if (!profile.empty() && d_at_min <= limit) iv[0] = 0.0;
+        if (!profile.empty() && d_at_max <= limit) iv[1] = INFINITY;
       }
       // The planes over the focal lengths the data support: a normal that turns with the focal
       // length along the profile is no better known than the focal length (the disabled test

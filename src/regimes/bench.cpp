@@ -26,6 +26,7 @@
 #include "rsfm/eval/trajectory_metrics.hpp"
 #include "rsfm/report/evaluation.hpp"
 #include "rsfm/io/input_error.hpp"
+#include "rsfm/io/json_text.hpp"
 #include "rsfm/io/summary.hpp"
 #include "rsfm/io/tracks_io.hpp"
 #include "rsfm/render/regime_suite.hpp"
@@ -151,8 +152,8 @@ ViewScore scoreView(const json& v, const io::Summary& truth, bool focal_determin
     if (focal_marked) {
       ++out.reported_undetermined;
       if (v.contains("focal_interval_px"))
-        out.focal_in_95 = *truth.focal_px >= v["focal_interval_px"][0].get<double>() &&
-                          *truth.focal_px <= v["focal_interval_px"][1].get<double>();
+        out.focal_in_95 = *truth.focal_px >= io::focalIntervalBound(v["focal_interval_px"], 0) &&
+                          *truth.focal_px <= io::focalIntervalBound(v["focal_interval_px"], 1);
     } else if (f && v.contains("focal_sd_px") && v["focal_sd_px"].is_number()) {
       out.focal_in_95 = std::abs(*f - *truth.focal_px) <= kFocal95 * v["focal_sd_px"].get<double>();
     }

@@ -8,6 +8,7 @@
 #include "rsfm/camera.hpp"
 #include "rsfm/geometry.hpp"
 #include "rsfm/report/report.hpp"
+#include "rsfm/io/json_text.hpp"
 #include "rsfm/io/tum.hpp"
 #include "rsfm/rotation.hpp"
 
@@ -188,7 +189,7 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
         j["focal_estimate_px"] = j["focal_px"];  // the optimum's value, for inspection only
         j["focal_px"] = nullptr;
         j["focal_sd_px"] = nullptr;
-        if (rf.focal_interval_px) j["focal_interval_px"] = {(*rf.focal_interval_px)[0], (*rf.focal_interval_px)[1]};
+        if (rf.focal_interval_px) j["focal_interval_px"] = io::focalIntervalJson((*rf.focal_interval_px)[0], (*rf.focal_interval_px)[1]);
         if (rf.focal_profile_best_px > 0) j["focal_profile_best_px"] = rf.focal_profile_best_px;
       }
       j["plane_determined"] = rf.plane_determined;

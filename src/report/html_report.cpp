@@ -7,6 +7,8 @@
 #include <iterator>
 #include <stdexcept>
 
+#include "rsfm/io/json_text.hpp"
+
 namespace rsfm::report {
 
 namespace {
@@ -84,8 +86,7 @@ std::string headline(const nlohmann::json& s) {
     if (s["focal_px"].is_null()) {
       std::string v = "<span class=\"nd\">not determined</span>";
       if (s.contains("focal_interval_px") && s["focal_interval_px"].is_array() && s["focal_interval_px"].size() == 2)
-        v += fmt::format(" (the data support {:.0f}&ndash;{:.0f} px)", s["focal_interval_px"][0].get<double>(),
-                         s["focal_interval_px"][1].get<double>());
+        v += fmt::format(" (the data support {})", io::focalIntervalText(s["focal_interval_px"], "&ndash;"));
       row("focal length", v);
     } else if (s.contains("focal_given")) {
       row("focal length", fmt::format("{:.1f} px (given)", num(s, "focal_px")));
@@ -178,8 +179,7 @@ std::vector<std::string> notDeterminedFindings(const nlohmann::json& s) {
   if (s.contains("focal_px") && s["focal_px"].is_null() && !s.contains("focal_given")) {
     std::string f = "Focal length not determined";
     if (s.contains("focal_interval_px") && s["focal_interval_px"].is_array() && s["focal_interval_px"].size() == 2)
-      f += fmt::format(": the data support {:.0f}-{:.0f} px", s["focal_interval_px"][0].get<double>(),
-                       s["focal_interval_px"][1].get<double>());
+      f += fmt::format(": the data support {}", io::focalIntervalText(s["focal_interval_px"]));
     out.push_back(f + ".");
   }
   if (s.contains("structure_determined") && s["structure_determined"].is_boolean() && !s["structure_determined"].get<bool>())

@@ -84,7 +84,7 @@ nlohmann::json patchSummary(const PatchReport& r) {
   if (checked && !r.motion->focal_determined) {
     j["focal_px"] = nullptr;
     j["focal_sd_px"] = nullptr;
-    if (r.motion->focal_interval_px) j["focal_interval_px"] = {(*r.motion->focal_interval_px)[0], (*r.motion->focal_interval_px)[1]};
+    if (r.motion->focal_interval_px) j["focal_interval_px"] = io::focalIntervalJson((*r.motion->focal_interval_px)[0], (*r.motion->focal_interval_px)[1]);
     j["focal_source"] = "not determined (motion check)";
   } else if (checked) {
     // The check's bundle adjustment over every frame is the better estimate of the focal length
