@@ -278,7 +278,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
         Eigen::Matrix<double, 2, 10> Jc;
         int nq = 0;
         if (!frameRow(k, o, &r, &Jm, idx, &Jc, &nq)) continue;  // cannot happen: the first pass projected it
-          const Eigen::Matrix<double, 10, 1> v = Jc.transpose() * r;
+        const Eigen::Matrix<double, 10, 1> v = Jc.transpose() * r;
         for (int a = 0; a < nq; ++a) g.col(o.id) += A.col(idx[a]) * v[a];
         g.col(o.id) -= W * (Jm.transpose() * r);
       }

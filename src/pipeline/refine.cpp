@@ -378,14 +378,14 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   const double pp_limit = kDeterminedPrincipalPointSdFraction * fmax;
   std::array<bool, 4> bound_camera = r.camera_free;
   PlaneBatchBound b = spreadAndBound(res.state, bound_camera);
+  const double pp_sd_x = s * std::sqrt(std::max(0.0, b.cov_camera(0, 0)));
+  const double pp_sd_y = s * std::sqrt(std::max(0.0, b.cov_camera(1, 1)));
   if (ro.hold_undetermined_principal_point && b.ok && r.camera_free[0] &&
-      !(b.camera_estimable[0] && b.camera_estimable[1] &&
-        s * std::sqrt(std::max({0.0, b.cov_camera(0, 0), b.cov_camera(1, 1)})) <= pp_limit)) {
+      !(b.camera_estimable[0] && b.camera_estimable[1] && std::max(pp_sd_x, pp_sd_y) <= pp_limit)) {
     // A principal point the data do not determine is where the optimizer stopped in a flat valley
     // (box.mp4's overlapping windows: 288-365 px in x from nearly the same frames, and the focal
     // length following it): held at the nominal centre and the rest solved again from there. Its
     // prior stays in the bound, so its uncertainty still widens the focal length's sd.
-    const double sd_x = s * std::sqrt(std::max(0.0, b.cov_camera(0, 0))), sd_y = s * std::sqrt(std::max(0.0, b.cov_camera(1, 1)));
     const Eigen::Vector2d at(cx + s * res.state.camera[0], cy + s * res.state.camera[1]);
     const std::array<bool, 4> free_before = r.camera_free;
     r.camera_free[0] = r.camera_free[1] = false;
@@ -398,7 +398,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       res = std::move(rh);
       why.push_back(fmt::format("principal point not determined (sd {:.1f}, {:.1f} px at ({:.0f}, {:.0f}) px); held at ({:.1f}, "
                                 "{:.1f}) with its prior sd {:.0f} px in the bound",
-                                sd_x, sd_y, at.x(), at.y(), cx, cy, s * bo.camera_prior_sd[0]));
+                                pp_sd_x, pp_sd_y, at.x(), at.y(), cx, cy, s * bo.camera_prior_sd[0]));
       b = spreadAndBound(res.state, bound_camera);
     } else {
       r.camera_free = free_before;

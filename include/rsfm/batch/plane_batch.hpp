@@ -143,14 +143,16 @@ struct PlaneBatchBoundOptions {
   bool skip_undetermined_frames = false;
   bool hold_beta = false;  ///< beta known: not a parameter (beta_estimable false, var_beta 0)
   /// Widen the bound of beta, the planes and the camera where the tracks' scores say it is too
-  /// narrow: the track-clustered ("sandwich") covariance V = S+ (P/(P-1) sum_t g_t g_t^T) S+
+  /// narrow: the track-clustered ("sandwich") covariance V = S+ (G/(G-1) sum_t g_t g_t^T) S+, G the
+  /// tracks with a non-zero score
   /// ([W80] for the estimator; clustered by track as in [CGM11]), g_t = sum over track t's
   /// observations of J~^T r (J~ the observation's Jacobian with the frame's motion eliminated,
   /// r the whitened residual at `at`, which must be the optimum). It holds whatever the errors'
   /// correlation along a track (a tracker's drift) and their spread, since each track's errors
   /// enter through its own score. Each of those parameters' rows and columns of cov are scaled
   /// by sqrt(max(1, V_ii / cov_ii)) (never narrowed); the factors are in PlaneBatchBound's
-  /// clustered_* fields. The motions' covariances stay the bound's.
+  /// clustered_* fields. The motions get no factor of their own; their covariances take the
+  /// widened rows through the back-substitution (motion_covariance).
   bool track_clustered = false;
 };
 struct PlaneBatchBound {
