@@ -113,13 +113,19 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--focal0-px", f.focal0_px, "initial focal guess in px (0: from the homographies, else max(width, height))")
       ->capture_default_str();
   a->add_option("--sigma-px", f.sigma_px, "tracking noise sd (px)")->capture_default_str();
-  a->add_option("--q-trans-rel", f.q_trans_rel, "plane models: per-frame translation sd relative to the main plane's depth")
-      ->capture_default_str();
+  // The motion's process noise comes from the data and adapts online (TrackFilterOptions::
+  // q_from_data); giving any of these fixes it at the values given (defaults as shown).
+  a->add_option_function<double>(
+       "--q-trans-rel", [pf = &f](double v) { pf->q_trans_rel = v, pf->q_from_data = false; },
+       "fixed process noise: per-frame translation sd relative to the main plane's depth (default: from the tracks' "
+       "image motion, adapted online)")
+      ->default_str(fmt::format("{}", f.q_trans_rel));
   Eigen::Matrix<double, 7, 1>& q = f.filter.q_motion;
-  a->add_option_function<double>("--q-trans", [&q](double v) { q[0] = q[1] = q[2] = v; },
-                                 "process variance of t per frame (point model; plane models with --q-trans-rel 0)")
+  a->add_option_function<double>("--q-trans", [pf = &f](double v) { pf->filter.q_motion.head<3>().setConstant(v), pf->q_from_data = false; },
+                                 "fixed process noise: variance of t per frame (with --q-trans-rel 0)")
       ->default_str(fmt::format("{}", q[0]));
-  a->add_option_function<double>("--q-omega", [&q](double v) { q[3] = q[4] = q[5] = v; }, "process variance of omega per frame")
+  a->add_option_function<double>("--q-omega", [pf = &f](double v) { pf->filter.q_motion.segment<3>(3).setConstant(v), pf->q_from_data = false; },
+                                 "fixed process noise: variance of omega per frame (rad^2)")
       ->default_str(fmt::format("{}", q[3]));
   a->add_option_function<double>("--q-beta", [&q](double v) { q[6] = v; }, "process variance of beta per frame")
       ->default_str(fmt::format("{}", q[6]));
@@ -301,6 +307,9 @@ std::string captionOf(const std::string& name) {
   if (name == "motion.png") return "Camera motion per frame: position and rotation in the first camera frame (trajectory.tum)";
   if (name == "normals.png") return "Plane normals per frame, the filter's online estimate with its sd (planes.csv)";
   if (name == "focal.png") return "Focal length per frame, the filter's online estimate with its sd (planes.csv)";
+  if (name == "process_noise.png")
+    return "Process noise of the filter's prediction per frame: from the tracks' image motion, adapted to the measured "
+           "motion (planes.csv)";
   if (name == "patch_run.png") return "Patch normals per frame (patch_normals.csv)";
   return name;
 }

@@ -370,6 +370,9 @@ class PlaneFilterPy {
     std::vector<Eigen::Vector2d> ref(static_cast<size_t>(N));
     for (int i = 0; i < N; ++i) ref[static_cast<size_t>(i)] = reference_uv.row(i).transpose();
     FilterOptions fo = TrackFilterOptions::defaultFilter();
+    // q_motion is the process noise, fixed: the pipeline's adaptation starts from the motion its
+    // start measured (TrackFilterOptions::q_from_data), which a step-by-step filter does not have.
+    fo.adapt.enabled = false;
     if (sigma_uv) fo.sigma_uv = *sigma_uv;
     if (q_motion) {
       if (q_motion->size() != 7) inputError("q_motion must have 7 entries (t_X, t_Y, t_Z beta, omega_X, omega_Y, omega_Z, beta)");
@@ -531,8 +534,9 @@ beta0, beta_sd0: the start of beta = 1/f and its relative sd (0: beta known and 
 depth0, normal_sd0: every plane starts through the point depth0 / beta0 beyond the image plane on
     the optical axis, frontal or with the unit normal of normals0 ((m, 3), reference camera
     frame, n_Z > 0), its N with relative sd normal_sd0. Plane 0's N_Z is then the scale gauge.
-sigma_uv: the observation sd (normalized units); q_motion: the 7 per-frame process variances
-    (default: the pipeline's, TrackFilterOptions).)doc")
+sigma_uv: the observation sd (normalized units); q_motion: the 7 per-frame process variances,
+    fixed (default: FilterOptions'; the pipeline's own filter sets them from the motion its start
+    measured and adapts them, which this step-by-step filter does not).)doc")
       .def("step", &PlaneFilterPy::step, py::arg("ids"), py::arg("uv"),
            "One frame: ids (K,) point indices, uv (K, 2) their normalized positions. Returns the frame's statistics "
            "(applied, used, gated, invalid, nis, nis_dof, healthy).")

@@ -2,10 +2,13 @@
 """Plots of `rsfm estimate` / `rsfm run` against frame.
 
 Usage: plot_estimate.py TRAJECTORY.tum PLANES.csv MOTION.png MOTION.svg NORMALS.png NORMALS.svg FOCAL.png FOCAL.svg
+       PROCESS_NOISE.png PROCESS_NOISE.svg
 - motion: camera position (tx, ty, tz, reference-camera frame, scene units) and rotation angle
   from the reference frame (deg);
 - normals: each plane's unit normal as azimuth/elevation angles (deg) with its 1-sigma band;
-- focal: focal length (px) with its 1-sigma band.
+- focal: focal length (px) with its 1-sigma band;
+- process_noise: the sd of the motion process noise the prediction used per frame (rotation deg,
+  translation % of the starting depth; planes.csv q_omega_sd_deg, q_trans_sd_rel).
 planes.csv's rows with estimate "online" are the filter's frame by frame (curves); a row "refined"
 is the final refinement's estimate (a dashed line with its 1-sigma band at the right).
 Run with /usr/bin/python3 (Debian's matplotlib) and MPLBACKEND=Agg.
@@ -37,14 +40,16 @@ def fnum(s):
 
 
 def main():
-    if len(sys.argv) != 9:
-        sys.exit("usage: plot_estimate.py TRAJECTORY.tum PLANES.csv MOTION.png MOTION.svg NORMALS.png NORMALS.svg FOCAL.png FOCAL.svg")
+    if len(sys.argv) != 11:
+        sys.exit("usage: plot_estimate.py TRAJECTORY.tum PLANES.csv MOTION.png MOTION.svg NORMALS.png NORMALS.svg "
+                 "FOCAL.png FOCAL.svg PROCESS_NOISE.png PROCESS_NOISE.svg")
     traj = read_tum(sys.argv[1])
     if not traj:
         sys.exit("plot_estimate.py: no poses in " + sys.argv[1])
     planes = defaultdict(lambda: defaultdict(list))
     focal = {}
     refined = {}  # plane -> (az, el, sd); -1 -> (focal, sd)
+    qnoise = {}  # frame -> (omega sd deg, translation sd relative to depth)
     with open(sys.argv[2], newline="") as f:
         for row in csv.DictReader(f):
             fr = int(row["frame"])
@@ -57,6 +62,8 @@ def main():
                                   fnum(row["normal_sd_deg"]))
                 continue
             focal[fr] = (fnum(row["focal_px"]), fnum(row["focal_sd_px"]))
+            if "q_omega_sd_deg" in row and row["q_omega_sd_deg"] not in ("NA", ""):
+                qnoise[fr] = (fnum(row["q_omega_sd_deg"]), fnum(row["q_trans_sd_rel"]))
             p = int(row["plane"])
             if p < 0:
                 continue
@@ -135,6 +142,26 @@ def main():
     fig.tight_layout()
     fig.savefig(sys.argv[7], dpi=110)
     fig.savefig(sys.argv[8])
+    plt.close(fig)
+
+    # The prediction's process noise per frame (from the tracks' image motion, adapted online to
+    # the motion the filter measured; jumps are frames taken again on a model mismatch).
+    qr = sorted(qnoise)
+    fig, ax = plt.subplots(figsize=(8, 4))
+    if qr:
+        ax.semilogy(qr, [qnoise[k][0] for k in qr], color="tab:blue", lw=1.4, label="rotation sd (deg per frame)")
+        ax.semilogy(qr, [100.0 * qnoise[k][1] for k in qr], color="tab:orange", lw=1.4,
+                    label="translation sd (% of depth per frame)")
+        ax.legend(fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no process noise recorded", transform=ax.transAxes, ha="center")
+    ax.set_xlabel("frame")
+    ax.set_ylabel("process noise sd per frame")
+    ax.grid(alpha=0.3, which="both")
+    ax.set_title("Motion process noise used by the filter's prediction", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(sys.argv[9], dpi=110)
+    fig.savefig(sys.argv[10])
     plt.close(fig)
 
 

@@ -5,6 +5,9 @@
 //    shallow pyramid without the check does not;
 //  - the filter takes a frame whose observations its gate rejects again with more process noise
 //    (a model mismatch) instead of stopping;
+//  - the motion's process noise comes from the tracks' image motion and follows the motion the
+//    filter measures: 0.1 and 10 deg per frame both run with it, a still stretch shrinks it and
+//    the motion after it restores it;
 //  - the plane finder keeps following a plane after its reference tracks have died (tracks that
 //    joined later carry it);
 //  - a sequence in which nothing moves says so;
@@ -89,6 +92,7 @@ TEST(Adaptive, FilterTakesAMismatchedFrameAgainInsteadOfStopping) {
   TrackFilterOptions o;
   o.model = TrackModel::Planes;
   o.focal0_px = 0.9 * *rt.truth.focal_px;
+  o.q_from_data = false;  // the fixed process noise (the noise from the data covers 10 deg: next test)
   TrackFilterOptions published = o;
   published.filter.mismatch_retries = 0;
   const TrackFilterResult a = runTrackFilter(rt.tracks, pf.labels, o);
@@ -104,6 +108,84 @@ TEST(Adaptive, FilterTakesAMismatchedFrameAgainInsteadOfStopping) {
   EXPECT_EQ(static_cast<int>(a.frames.size()), rt.tracks.numFrames());
   EXPECT_GT(retried, 0);
   EXPECT_TRUE(!b.stopped.empty() || gated_b > 2 * gated_a) << "the published filter copes: the test shows nothing";
+}
+
+/// The pipeline's online filter (planes found, the start chosen, no refinement) on a regime's
+/// synthetic tracks (0.2 px), with the process noise from the data or fixed at the defaults.
+TrackFilterResult filterRegime(const char* name, bool q_from_data) {
+  const render::Regime* r = render::builtinRegimeSuite().find(name);
+  EXPECT_NE(r, nullptr) << name;
+  if (!r) return {};
+  const test::RegimeTracks rt = test::regimeTracks(r->options, 0.2, 3);
+  EstimateOptions o;
+  o.refine.enabled = false;
+  o.filter.q_from_data = q_from_data;
+  return estimate(rt.tracks, o).online;
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+TEST(Adaptive, ProcessNoiseComesFromTheStartsMotionAndFollowsTheMeasuredMotion) {
+  // The orbits turn the camera by deg_per_frame about the box (the rotation per frame).
+  for (const auto& [name, deg] : {std::pair{"box-slow", 0.1}, std::pair{"box-1deg", 1.0}, std::pair{"box-short-10deg", 10.0}}) {
+    SCOPED_TRACE(name);
+    const TrackFilterResult a = filterRegime(name, true);
+    const TrackFilterResult fixed = filterRegime(name, false);
+    ASSERT_TRUE(a.ok()) << a.stopped;
+    EXPECT_TRUE(a.ended.empty()) << a.ended;
+    std::vector<double> w;
+    int retried = 0, retried_fixed = 0;
+    for (std::size_t k = 1; k < a.frames.size(); ++k) {
+      w.push_back(a.frames[k].q_omega_sd_deg);
+      retried += a.frames[k].q_scale > 1.0;
+    }
+    for (const auto& f : fixed.frames) retried_fixed += f.q_scale > 1.0;
+    const double m = median(w);
+    std::printf("%s: image motion %.2f px/frame, the start's %.3f deg/frame, Q0 omega sd %.3f deg, adapted median %.3f deg "
+                "(true %.1f deg/frame); retried %d frames (fixed noise %.2f deg: %d)\n",
+                name, a.image_motion_px, a.start_rotation_deg_per_frame, a.q0_omega_sd_deg, m, deg, retried,
+                fixed.q0_omega_sd_deg, retried_fixed);
+    EXPECT_TRUE(a.q_adapted);
+    // The start measured the motion, and the adapted noise covers one frame's rotation (its sd is
+    // twice the motion measured, FilterOptions::Adaptation::inflation 4) without being an order
+    // of magnitude wider.
+    EXPECT_GE(a.q0_omega_sd_deg, 0.7 * deg);
+    EXPECT_LE(a.q0_omega_sd_deg, 1.5 * deg);
+    EXPECT_GE(m, 1.0 * deg);
+    EXPECT_LE(m, 4.0 * deg);
+    EXPECT_EQ(retried, 0) << "the noise from the data needed no retry";
+    if (deg >= 10.0) {
+      EXPECT_GT(retried_fixed, 0) << "the fixed noise copes with 10 deg: the test shows nothing";
+    }
+    if (deg <= 0.1) {
+      EXPECT_GE(fixed.q0_omega_sd_deg, 4.0 * deg) << "the fixed noise was not too wide here";
+    }
+  }
+}
+
+TEST(Adaptive, AStillStretchShrinksTheProcessNoiseAndTheMotionAfterItRestoresIt) {
+  // box-still-middle: 30 frames at the pose halfway through the orbit.
+  const render::Regime* r = render::builtinRegimeSuite().find("box-still-middle");
+  ASSERT_NE(r, nullptr);
+  const int half = r->options.movingFrames() / 2, still = r->options.still_middle;
+  ASSERT_GE(still, 30);
+  const TrackFilterResult a = filterRegime("box-still-middle", true);
+  ASSERT_TRUE(a.ok()) << a.stopped;
+  ASSERT_EQ(static_cast<int>(a.frames.size()), r->options.frames);
+  std::vector<double> before, late_still, after;
+  for (const TrackFrame& f : a.frames) {
+    if (f.frame >= 15 && f.frame < half) before.push_back(f.q_omega_sd_deg);
+    if (f.frame >= half + still - 10 && f.frame < half + still) late_still.push_back(f.q_omega_sd_deg);
+    if (f.frame >= half + still + 15 && f.frame < half + still + 30) after.push_back(f.q_omega_sd_deg);
+  }
+  const double mb = median(before), ms = median(late_still), ma = median(after);
+  std::printf("rotation noise sd: moving %.4f deg, end of the still stretch %.4f deg, moving again %.4f deg\n", mb, ms, ma);
+  EXPECT_LE(ms, 0.3 * mb) << "a still stretch left the process noise at the moving value";
+  EXPECT_GE(ma, 0.5 * mb) << "the motion after the still stretch did not restore the process noise";
 }
 
 TEST(Adaptive, PlaneFinderFollowsAPlanePastItsReferenceTracks) {

@@ -106,6 +106,11 @@ TEST(Pipeline, LibraryCallGivesTheCliNumbers) {
       sum += cli.summary["stage_seconds"][k].get<double>();
     }
     EXPECT_FALSE(cli.summary["stage_seconds"].contains("tracking"));  // rsfm run's only
+    // The process noise came from the data and adapted (summary.json process_noise).
+    const auto& pn = cli.summary["process_noise"];
+    EXPECT_TRUE(pn["from_data"].get<bool>() && pn["adapted"].get<bool>()) << pn.dump();
+    EXPECT_GT(pn["initial_omega_sd_deg"].get<double>(), 0.0);
+    EXPECT_LE(pn["omega_sd_deg"]["min"].get<double>(), pn["omega_sd_deg"]["max"].get<double>());
     EXPECT_LE(sum, cli.summary["seconds"].get<double>());
   }
   {
@@ -116,12 +121,17 @@ TEST(Pipeline, LibraryCallGivesTheCliNumbers) {
     o.filter.passes = 3;
     o.filter.filter.iterations = 2;
     o.filter.filter.q_motion[3] = o.filter.filter.q_motion[4] = o.filter.filter.q_motion[5] = 4e-4;
+    o.filter.q_from_data = false;  // what --q-omega means: fixed process noise
     o.refine.enabled = false;
     const EstimateResult lib = estimate(tracks, o);
     EXPECT_FALSE(lib.refined.ok);
     const Cli cli =
         runCli(file, dir / "options", "--normal-sd0 0.3 --beta-sd0 0.2 --passes 3 --iterations 2 --q-omega 4e-4 --refine none");
     expectSame(lib, cli);
+    // --q-omega fixes the process noise: not from the data, not adapted, at the value given.
+    EXPECT_FALSE(cli.summary["process_noise"]["adapted"].get<bool>());
+    EXPECT_FALSE(cli.summary["process_noise"]["from_data"].get<bool>());
+    EXPECT_NEAR(cli.summary["process_noise"]["initial_omega_sd_deg"].get<double>(), std::sqrt(4e-4) * 180.0 / M_PI, 1e-9);
     // And they took effect: not the default run's numbers.
     EstimateOptions d;
     d.refine.enabled = false;

@@ -43,7 +43,7 @@ if command -v ffmpeg >/dev/null; then
   echo "overlay.mp4 of 319x239 frames: $size (padded, nothing dropped)"
 fi
 "$RSFM" evaluate --estimate "$TMP/e" --truth "$TMP/r/truth" >"$TMP/table.txt"
-for f in trajectory.tum planes.csv summary.json labels.csv tracks.csv overlay.mp4 report.html motion.png normals.png focal.png \
+for f in trajectory.tum planes.csv summary.json labels.csv tracks.csv overlay.mp4 report.html motion.png normals.png focal.png process_noise.png \
          motion.svg normals.svg focal.svg evaluation.json evaluation.md; do
   [ -s "$TMP/e/$f" ] || { echo "FAIL missing output $f"; exit 1; }
 done

@@ -29,6 +29,8 @@ TrackFilterOptions startOptions(const TrackFilterOptions& base, const vision::St
   if (!o.beta_sd0) o.beta_sd0 = 0.1;
   o.initial_normals.assign(h.normals.begin(), h.normals.begin() + m);
   o.initial_distance_ratios.assign(h.distance_ratios.begin(), h.distance_ratios.begin() + m);
+  o.start_rotation_deg_per_frame = h.rotation_deg_per_frame;
+  o.start_translation_rel_per_frame = h.translation_rel_per_frame;
   return o;
 }
 

@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <sstream>
+#include <string_view>
 
 #include "rsfm/camera.hpp"
 #include "rsfm/geometry.hpp"
@@ -164,6 +165,32 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   for (const auto& f : r.result->frames)
     if (f.q_scale > 1.0) mism.push_back({{"frame", f.frame}, {"process_noise_factor", f.q_scale}});
   j["filter_mismatch_frames"] = mism;
+  // The motion's process noise (TrackFilterOptions::q_from_data, FilterOptions::Adaptation): where
+  // it started and the range it took over the frames (each frame's value in planes.csv).
+  {
+    const TrackFilterResult& on = *r.result;
+    nlohmann::json pn;
+    pn["from_data"] = on.q_from_data;
+    pn["adapted"] = on.q_adapted;
+    pn["image_motion_px"] = on.image_motion_px;
+    pn["start_rotation_deg_per_frame"] = on.start_rotation_deg_per_frame;
+    pn["start_translation_rel_per_frame"] = on.start_translation_rel_per_frame;
+    pn["initial_omega_sd_deg"] = on.q0_omega_sd_deg;
+    pn["initial_translation_sd_rel"] = on.q0_trans_sd_rel;
+    std::vector<double> w, t;
+    for (std::size_t k = 1; k < on.frames.size(); ++k) {
+      w.push_back(on.frames[k].q_omega_sd_deg);
+      t.push_back(on.frames[k].q_trans_sd_rel);
+    }
+    auto range = [](std::vector<double> v) {
+      if (v.empty()) return nlohmann::json(nullptr);
+      std::sort(v.begin(), v.end());
+      return nlohmann::json{{"min", v.front()}, {"median", v[v.size() / 2]}, {"max", v.back()}};
+    };
+    pn["omega_sd_deg"] = range(w);
+    pn["translation_sd_rel"] = range(t);
+    j["process_noise"] = pn;
+  }
   // The tracks on the planes ran out before the input's last frame (TrackFilterResult::ended).
   j["ended_early"] = r.result->ended.empty() ? nlohmann::json(nullptr) : nlohmann::json(r.result->ended);
   // Final focal length and normals of every pass (--passes): their spread is an honest measure
@@ -285,15 +312,19 @@ std::string tumText(const TrackFilterResult& res, const ImageInfo& image) {
 std::string planeRows(const TrackFrame& f, double scale_px, const char* estimate) {
   const double bsd = std::sqrt(std::max(0.0, f.var_beta));
   const double focal = scale_px / f.beta, fsd = scale_px * bsd / (f.beta * f.beta);
+  // The prediction's process noise of an online frame after the first (NA: the reference frame,
+  // the refined row).
+  const bool has_q = std::string_view(estimate) == "online" && f.q_omega_sd_deg > 0.0;
+  const std::string qw = has_q ? num(f.q_omega_sd_deg, 4) : "NA", qt = has_q ? num(f.q_trans_sd_rel, 4) : "NA";
   if (f.N.empty())
-    return fmt::format("{},-1,NA,NA,NA,NA,NA,NA,{},{},{},{},{},{},{},{}\n", f.frame, num(f.beta), num(bsd), num(focal, 3),
-                       num(fsd, 3), f.used, f.gated, num(f.rms_px, 4), estimate);
+    return fmt::format("{},-1,NA,NA,NA,NA,NA,NA,{},{},{},{},{},{},{},{},{},{}\n", f.frame, num(f.beta), num(bsd),
+                       num(focal, 3), num(fsd, 3), f.used, f.gated, num(f.rms_px, 4), estimate, qw, qt);
   std::string out;
   for (size_t p = 0; p < f.N.size(); ++p) {
     const MetricPlane mp = metricPlane(f.N[p], f.beta, covBetaN(f, static_cast<int>(p)));
-    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, p, num(mp.n.x()), num(mp.n.y()),
+    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, p, num(mp.n.x()), num(mp.n.y()),
                        num(mp.n.z()), num(mp.sd_angle_deg, 4), num(mp.d), num(mp.sd_d), num(f.beta), num(bsd),
-                       num(focal, 3), num(fsd, 3), f.used, f.gated, num(f.rms_px, 4), estimate);
+                       num(focal, 3), num(fsd, 3), f.used, f.gated, num(f.rms_px, 4), estimate, qw, qt);
   }
   return out;
 }
@@ -347,7 +378,8 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
   files->write(dir / "poses.csv", posesCsv(res, refined ? &r.refined->cov_motion : nullptr));
   // planes.csv: the filter's frame by frame, then the refinement's final estimate.
   std::string pc =
-      "frame,plane,nx,ny,nz,normal_sd_deg,distance,distance_sd,beta,beta_sd,focal_px,focal_sd_px,used,gated,rms_px,estimate\n";
+      "frame,plane,nx,ny,nz,normal_sd_deg,distance,distance_sd,beta,beta_sd,focal_px,focal_sd_px,used,gated,rms_px,estimate,"
+      "q_omega_sd_deg,q_trans_sd_rel\n";
   for (const auto& f : online.frames) pc += planeRows(f, online.scale_px, "online");
   if (refined) {
     TrackFrame fin = res.frames.back();
@@ -369,7 +401,8 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
   nlohmann::json summary = estimateSummary(r);
   if (plots) {
     const Figures fig = makeFigures(files, dir, "plot_estimate.py", {tum_tmp.string(), planes_tmp.string()},
-                                    {"motion.png", "motion.svg", "normals.png", "normals.svg", "focal.png", "focal.svg"});
+                                    {"motion.png", "motion.svg", "normals.png", "normals.svg", "focal.png", "focal.svg",
+                                     "process_noise.png", "process_noise.svg"});
     summary["figures"] = figuresJson(fig);
     if (figures) *figures = fig;
   }

@@ -47,7 +47,9 @@ std::vector<Sol> solutions(const cv::Matx33d& H, const cv::Matx33d& K, const std
 /// pair_frame / 2 assumed the motion starts at once; after a still start (the ViSP cube's first
 /// 17 frames) that frame had hardly moved, its decompositions fitted noise, and the focal
 /// length agreed best at the end of the grid (1152 px; 617 px with the still frames cut off).
-int halfMotionFrame(const Tracks& tracks, const FoundPlane& plane, int k2) {
+/// The median displacement (px) of the plane's reference points under its homography H[k], for
+/// k = 0..k2 (empty when the plane has no reference points or fewer homographies).
+std::vector<double> planeMotionPx(const Tracks& tracks, const FoundPlane& plane, int k2) {
   std::vector<cv::Vec3d> ref;
   for (int id : plane.members)
     if (const TrackPoint* p = tracks.find(0, id)) ref.push_back(cv::Vec3d(p->px.x(), p->px.y(), 1.0));
@@ -61,12 +63,30 @@ int halfMotionFrame(const Tracks& tracks, const FoundPlane& plane, int k2) {
     std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
     return d[d.size() / 2];
   };
-  if (!ref.empty() && static_cast<int>(plane.H.size()) > k2) {
-    const double half = 0.5 * motion(k2);
+  std::vector<double> out;
+  if (!ref.empty() && static_cast<int>(plane.H.size()) > k2)
+    for (int k = 0; k <= k2; ++k) out.push_back(motion(k));
+  return out;
+}
+
+/// The first frame k in 1..k2-1 whose motion (planeMotionPx) reaches half of frame k2's.
+int halfMotionFrame(const std::vector<double>& motion, int k2) {
+  if (static_cast<int>(motion.size()) > k2) {
+    const double half = 0.5 * motion[k2];
     for (int k = 1; k < k2; ++k)
-      if (motion(k) >= half) return k;
+      if (motion[k] >= half) return k;
   }
   return std::max(1, k2 / 2);
+}
+
+/// Frames over which the plane moved up to k2: from the last frame whose motion was below 5 % of
+/// frame k2's (a still start) to k2.
+int movingFrames(const std::vector<double>& motion, int k2) {
+  int k0 = 0;
+  if (static_cast<int>(motion.size()) > k2)
+    for (int k = 1; k < k2; ++k)
+      if (motion[k] < 0.05 * motion[k2]) k0 = k;
+  return std::max(1, k2 - k0);
 }
 
 }  // namespace
@@ -88,7 +108,9 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
     return out;
   }
   const int k2 = pf.pair_frame;
-  const int k1 = halfMotionFrame(tracks, *planes[0], k2);
+  const std::vector<double> motion0 = planeMotionPx(tracks, *planes[0], k2);
+  const int k1 = halfMotionFrame(motion0, k2);
+  const int moving = movingFrames(motion0, k2);
   const double W = std::max(tracks.image.width, tracks.image.height);
   std::vector<double> grid;
   if (focal_px > 0) grid.push_back(focal_px);
@@ -100,6 +122,7 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
     double cost = std::numeric_limits<double>::infinity();
     std::vector<Eigen::Vector3d> normals;
     std::vector<double> ratios;
+    double rotation_deg = 0.0, translation_rel = 0.0;  ///< plane 0's decomposition at the pair frame
   };
   std::vector<std::vector<Branch>> at(grid.size());
   std::vector<double> best_cost(grid.size(), std::numeric_limits<double>::infinity());
@@ -140,6 +163,11 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
           b.normals.assign(m, Eigen::Vector3d::UnitZ());
           b.ratios.assign(m, 1.0);
           const double t0 = cv::norm(s2[0][c2[0]].t);
+          // The decomposition's motion: R's angle, and t / d (d the plane's distance from the
+          // reference centre) as a fraction of the depth at which the optical axis meets the
+          // plane, d / n_z: |t / d| n_z.
+          b.rotation_deg = rotAngleDeg(s2[0][c2[0]].R, cv::Mat::eye(3, 3, CV_64F));
+          b.translation_rel = t0 * std::abs(s2[0][c2[0]].n[2]) / cv::norm(s2[0][c2[0]].n);
           for (int j = 0; j < m; ++j) {
             const cv::Vec3d n = s2[j][c2[j]].n;
             b.normals[j] = Eigen::Vector3d(n[0], n[1], n[2]).normalized();
@@ -184,6 +212,8 @@ PlaneStart planeStart(const Tracks& tracks, const PlaneFinding& pf, double focal
       h.focal_minimum = static_cast<int>(r);
       h.branch = static_cast<int>(b);
       h.at_grid_end = grid.size() > 1 && (gi == 0 || gi + 1 == grid.size());
+      h.rotation_deg_per_frame = at[gi][b].rotation_deg / moving;
+      h.translation_rel_per_frame = at[gi][b].translation_rel / moving;
       out.hypotheses.push_back(std::move(h));
     }
   }

@@ -113,6 +113,31 @@ struct FilterOptions {
   /// (at least 5 iterations). 0 retries: the published filter.
   int mismatch_retries = 0;
   double mismatch_factor = 10.0;
+  /// Process noise adapted to the motion the filter measures (issue 14 item 4; docs/filter.md,
+  /// "Process noise from the data"). The model's dynamics are the identity (a random walk on the
+  /// pose), so the prediction error of one frame is that frame's whole motion delta = x+ - x-
+  /// (t_X, t_Y, t_Z beta, omega): the matched process noise is its second moment E[delta delta^T]
+  /// (covariance matching, [MS99]). q_motion is taken as the *shape* Q0 of each block (translation,
+  /// rotation) and each block's scale s is matched to the motion it measured:
+  ///   z = sum_i delta_i^2 / Q0_i over the block's 3 components (z = 1 for a motion of one
+  ///       Q0 sd along one axis),
+  ///   m <- (1 - a) m + a z, a = 2 / (window + 1) (an exponential window of ~`window` frames),
+  ///   Q_block = Q0_block clamp(inflation m, floor, ceiling).
+  /// Summing the 3 components makes each component's variance cover the whole motion (a rotation
+  /// about one axis is not under-covered by isotropic noise). The first step uses Q0 itself (the
+  /// motion the start measured); m starts at 1 (that motion), so the next steps' scale starts
+  /// near `inflation`. (Starting at inflation x Q0 instead changed the start chosen on box.mp4's
+  /// window at frame 4 and on webcam-object, both for the worse: docs/regimes.md.) Only steps
+  /// whose update was applied and healthy feed m. A step taken again on a model mismatch uses
+  /// max(s, 1) x mismatch_factor^attempt per block, so a still stretch's small s does not leave
+  /// the retries below Q0. Off: q_motion as given every frame (the published filter).
+  struct Adaptation {
+    bool enabled = false;
+    int window = 10;         ///< frames of the exponential window (a = 2 / (window + 1))
+    double floor = 1e-2;     ///< smallest scale of Q0 (sd >= 10 % of Q0's: a still stretch)
+    double ceiling = 1e4;    ///< largest scale of Q0 (sd <= 100 x Q0's)
+    double inflation = 1.0;  ///< the matched second moment's multiplier (the pipeline: 4, an sd twice the motion)
+  } adapt;
 };
 
 /// One reference position's refinement (ReferenceModel::Refine), information form:
@@ -159,6 +184,9 @@ struct FrameStats {
   bool beta_projected = false;  ///< the update left beta < FilterOptions::beta_min (projected)
   std::uint32_t health = kHealthy;  ///< EKF health after the step (HealthFlag bits)
   double q_scale = 1.0;  ///< the motion process noise's multiplier this step (FilterOptions::mismatch_retries)
+  /// Multipliers of q_motion's translation and rotation blocks used this step (adaptation and
+  /// mismatch retries together; without adaptation both equal q_scale).
+  double q_translation_scale = 1.0, q_rotation_scale = 1.0;
   /// Observation index (into step()'s argument) of each measurement block; update.gated_mask
   /// is aligned with it.
   std::vector<int> used;
@@ -201,6 +229,7 @@ class RecursiveFilter {
       P_post_ = ekf_.P();
     }
     double q_scale = 1.0;
+    const Eigen::Matrix<double, 6, 1> motion_before = ekf_.x().template head<6>();
     for (int attempt = 0;; ++attempt) {
       fs.iterations = 1;
       fs.invalid = 0;
@@ -209,7 +238,17 @@ class RecursiveFilter {
       fs.health = kHealthy;
       fs.q_scale = q_scale;
       q_.setConstant(ekf_.size(), opt_.q_structure);
-      q_.template head<7>() = opt_.q_motion * q_scale;
+      if (opt_.adapt.enabled) {
+        // FilterOptions::Adaptation: each block at its matched scale; a retry at least Q0 x factor^attempt.
+        fs.q_translation_scale = attempt == 0 ? adapt_scale_[0] : std::max(adapt_scale_[0], 1.0) * q_scale;
+        fs.q_rotation_scale = attempt == 0 ? adapt_scale_[1] : std::max(adapt_scale_[1], 1.0) * q_scale;
+        q_.template head<3>() = opt_.q_motion.template head<3>() * fs.q_translation_scale;
+        q_.template segment<3>(3) = opt_.q_motion.template segment<3>(3) * fs.q_rotation_scale;
+        q_[6] = opt_.q_motion[6] * q_scale;
+      } else {
+        fs.q_translation_scale = fs.q_rotation_scale = q_scale;
+        q_.template head<7>() = opt_.q_motion * q_scale;
+      }
       ekf_.predict(q_);
       linearize(ekf_.x(), obs, rc, &batch_, &fs.invalid, &fs.first_problem, &fs.used);
       x_prior_ = ekf_.x();
@@ -240,6 +279,7 @@ class RecursiveFilter {
       fs.health |= kInvalidRotation;
       return fs;
     }
+    if (opt_.adapt.enabled && fs.update.applied && fs.health == kHealthy) adaptProcessNoise(motion_before);
     if (opt_.reference == ReferenceModel::Refine && fs.update.applied && fs.health == kHealthy)
       refineReferences(obs, fs.used, fs.update.gated_mask);
     syncReferences(ekf_.x());
@@ -259,8 +299,12 @@ class RecursiveFilter {
     ekf_.mutableP() = P;
     Rg_ = Rg;
     steps_ = 0;
+    adapt_mean_.setOnes();
+    adapt_scale_.setOnes();
     syncReferences(ekf_.x());
   }
+  /// FilterOptions::Adaptation: the current scales of q_motion's translation and rotation blocks.
+  const Eigen::Vector2d& processNoiseScale() const { return adapt_scale_; }
 
   const Model& model() const { return model_; }
   Model& mutableModel() { return model_; }
@@ -293,6 +337,25 @@ class RecursiveFilter {
                  BlockBatch* batch, int* invalid, MeasureStatus* problem, std::vector<int>* used) {
     syncReferences(x);
     model_.linearize(x, Rg_, obs, opt_.sigma_uv, rc, batch, invalid, problem, used, ref_index_);
+  }
+  /// FilterOptions::Adaptation after an applied step: the frame's motion delta (t_X, t_Y, t_Z beta,
+  /// omega; the prior was `before`, identity dynamics) in units of Q0, per block, into the
+  /// exponential window's mean; the next step's scales follow.
+  void adaptProcessNoise(const Eigen::Matrix<double, 6, 1>& before) {
+    const Eigen::Matrix<double, 6, 1> d = ekf_.x().template head<6>() - before;
+    const double a = 2.0 / (std::max(opt_.adapt.window, 1) + 1.0);
+    for (int b = 0; b < 2; ++b) {
+      double z = 0.0;
+      bool any = false;
+      for (int i = 3 * b; i < 3 * b + 3; ++i)
+        if (opt_.q_motion[i] > 0.0) {
+          z += d[i] * d[i] / opt_.q_motion[i];
+          any = true;
+        }
+      if (!any || !std::isfinite(z)) continue;
+      adapt_mean_[b] = (1.0 - a) * adapt_mean_[b] + a * z;
+      adapt_scale_[b] = std::clamp(opt_.adapt.inflation * adapt_mean_[b], opt_.adapt.floor, opt_.adapt.ceiling);
+    }
   }
   void ensureReferenceCovariances() {
     const double s2 = referenceSigma() * referenceSigma();
@@ -386,6 +449,9 @@ class RecursiveFilter {
   std::vector<Eigen::Matrix2d> ref_cov_;
   int ref_index_ = -1;  ///< ReferenceModel::State: first reference column (-1: not in the state)
   int steps_ = 0;  ///< steps taken (warm-up)
+  /// FilterOptions::Adaptation: the window's mean of z per block (translation, rotation) and the
+  /// scales it gives (both 1 at the start: Q = Q0).
+  Eigen::Vector2d adapt_mean_ = Eigen::Vector2d::Ones(), adapt_scale_ = Eigen::Vector2d::Ones();
   // Per-step work space, kept so that a step allocates nothing once warm (issue 15).
   FrameStats fs_;
   BlockBatch batch_;

@@ -55,6 +55,24 @@ struct TrackFilterOptions {
   /// Q would mean different motions for different depth0; Q must cover one frame's motion
   /// (docs/filter.md). <= 0: use filter.q_motion as given.
   double q_trans_rel = 0.01;
+  /// The motion's process noise from the data (issue 14 item 4; docs/estimate.md section 3): Q0
+  /// from the motion the start measured and the tracks' own image motion, then adapted online
+  /// to the motion the filter measures (FilterOptions::Adaptation, on). Each omega component's
+  /// sd is max(start_rotation_deg_per_frame, D / f0 rad) and the translation's sd
+  /// max(start_translation_rel_per_frame, D / f0) of the main plane's starting depth, with D the
+  /// 90th percentile over the frames of the median displacement between consecutive frames of
+  /// the tracks that enter the filter (at least sigma_px; D / f0 is the rotation, and the
+  /// translation relative to depth, that move the image by D px) and f0 the starting focal
+  /// length. The image motion alone underestimates a camera that turns to keep the scene in
+  /// view (its rotation and translation cancel in the image: box-short-10deg moves 20 px per
+  /// frame for 10 deg), hence the start's; without a start's motion (frontal start) the given
+  /// q_trans_rel and filter.q_motion's omega stay Q0's floor. false: q_trans_rel and filter.q_motion's omega as
+  /// given, fixed (filter.adapt off). q_motion's beta entry is used as given either way.
+  bool q_from_data = true;
+  /// The start's measured motion per moving frame (vision::StartHypothesis; set by
+  /// rsfm::startOptions; 0: no start measured it): rotation (deg) and translation relative to
+  /// the main plane's depth on the optical axis.
+  double start_rotation_deg_per_frame = 0.0, start_translation_rel_per_frame = 0.0;
   std::vector<Eigen::Vector3d> initial_normals;
   std::vector<double> initial_distance_ratios;
   double depth_sd0 = 0.5;    ///< point model: initial sd of each depth alpha, relative to alpha0 = depth0 / beta0
@@ -94,6 +112,10 @@ struct TrackFrame {
   double rms_px = 0.0;  ///< posterior reprojection RMS of the accepted observations (px)
   std::uint32_t health = kHealthy;
   double q_scale = 1.0;  ///< motion process noise multiplier of this step (FilterOptions::mismatch_retries)
+  /// The process noise this step's prediction used (adaptation and mismatch retries included):
+  /// each omega component's sd (deg per frame) and the translation's sd (t_X; relative to the
+  /// main plane's starting depth, per frame).
+  double q_omega_sd_deg = 0.0, q_trans_sd_rel = 0.0;
 };
 
 struct TrackFilterResult {
@@ -111,6 +133,14 @@ struct TrackFilterResult {
   int passes = 1;                    ///< passes run
   std::vector<double> pass_focal_px; ///< final focal length of each pass
   std::vector<std::vector<Eigen::Vector3d>> pass_N;  ///< final planes of each pass
+  /// The motion's process noise (TrackFilterOptions::q_from_data): the tracks' per-frame image
+  /// motion D (px, 0 when not from the data), and Q0 as sds (omega per component, deg per
+  /// frame; translation relative to the starting depth per frame); from data: Q0 came from the
+  /// data (TrackFilterOptions::q_from_data); adapted: the online adaptation ran.
+  double image_motion_px = 0.0, q0_omega_sd_deg = 0.0, q0_trans_sd_rel = 0.0;
+  /// TrackFilterOptions' start motion the noise started from (0: none).
+  double start_rotation_deg_per_frame = 0.0, start_translation_rel_per_frame = 0.0;
+  bool q_from_data = false, q_adapted = false;
   bool ok() const { return stopped.empty(); }
 };
 

@@ -36,6 +36,11 @@ struct StartHypothesis {
   /// there, so the homographies do not determine the focal length (on the ViSP cube's patch
   /// centres, 1152 px, where the KLT tracks give an interior 617 px).
   bool at_grid_end = false;
+  /// The motion this decomposition measured, per moving frame (from the last frame before the
+  /// pair frame whose plane motion was below 5 % of the pair frame's): plane 0's rotation angle
+  /// (deg) and its translation relative to the depth at which the optical axis meets the plane
+  /// (|t / d| n_z). The filter's process noise starts there (TrackFilterOptions::q_from_data).
+  double rotation_deg_per_frame = 0.0, translation_rel_per_frame = 0.0;
   /// Filled by the scoring (rsfm::scoreStartHypotheses): per offered observation over the scored
   /// frames, the update's joint innovation chi-square of the accepted ones plus the gate's value
   /// for the others (lower = the data agree better; +inf: the filter stopped).
