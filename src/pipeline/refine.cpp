@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
 #include "rsfm/batch/plane_batch.hpp"
 #include "rsfm/camera.hpp"
@@ -219,14 +220,69 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     return r;
   }
   r.iterations = res.iterations;
-  // Stage 2: the camera released from there. A camera no camera could be (the principal point
-  // beyond max_principal_offset, a distortion folding the image) is held again and the rest
-  // solved once more.
   std::vector<std::string> why;
   const double fmax = std::max(tracks.image.width, tracks.image.height);
   r.camera_free = wanted;
+  // The final residuals' spread, and their correlation along tracks, scale the bound; the bound
+  // treats the camera components in `bound_camera` as parameters (with their priors).
+  std::vector<std::vector<double>> per;
+  double ss = 0, sigma_final = 0;
+  auto spreadAndBound = [&](const PlaneBatchState& st, const std::array<bool, 4>& bound_camera) {
+    per = residualsPx(p, st, s, true);
+    const std::vector<double> all = pooled(per);
+    ss = 0;
+    for (double x : all) ss += x * x;
+    const int n_cam = static_cast<int>(std::count(bound_camera.begin(), bound_camera.end(), true));  // the bound's parameters
+    const int n_params = 6 * (F - 1) + 1 + (3 * m - 1) + 2 * static_cast<int>(p.track_of_point.size()) + n_cam;
+    const int n_res = static_cast<int>(all.size());
+    r.final_rms_px = all.empty() ? 0.0 : std::sqrt(ss / all.size());
+    r.sigma_px = n_res > n_params ? std::sqrt(ss / (n_res - n_params)) : r.final_rms_px;
+    r.robust_sigma_px = robustSd(all);
+    r.tracks = static_cast<int>(p.track_of_point.size());
+    r.observations = n_res / 2;
+    {
+      // Pooled autocorrelation of the residuals along tracks (x and y separately), lags 1..50,
+      // summed up to its first non-positive value.
+      double c0 = 0;
+      for (double x : all) c0 += x * x;
+      double sum_rho = 0;
+      for (int lag = 1; lag <= 1000 && c0 > 0; ++lag) {
+        double c = 0;
+        for (const auto& v : per)  // v = (x0, y0, x1, y1, ...)
+          for (std::size_t i = 0; i + 2 * lag + 1 < v.size(); i += 2)
+            c += v[i] * v[i + 2 * lag] + v[i + 1] * v[i + 2 * lag + 1];
+        const double rho = c / c0;
+        if (!(rho > 0)) break;
+        sum_rho += rho;
+      }
+      r.correlation_inflation = 1 + 2 * sum_rho;
+    }
+    sigma_final = r.sigma_px * std::sqrt(r.correlation_inflation);
+    p.data.sigma_uv = sigma_final / s;
+    PlaneBatchBoundOptions bopt;
+    bopt.camera_free = bound_camera;
+    bopt.camera_prior_sd = bo.camera_prior_sd;
+    bopt.motion_covariance = true;
+    bopt.skip_undetermined_frames = true;
+    bopt.hold_beta = known_focal;
+    bopt.track_clustered = ro.track_clustered_sd;
+    return planeBatchBound(p.data, st, bopt);
+  };
+  // Stage 2: the camera released from there. A camera no camera could be (the principal point
+  // beyond max_principal_offset, a distortion folding the image) is held again and the rest
+  // solved once more.
   // Holds (in r.camera_free, with the reason in `why`) the components of the camera in `st` that
   // no camera could have; true when it held any.
+  // A distortion no lens has: |k1| or |k2| above 1, or the image's farthest corner beyond the
+  // radius where the radial map stops being monotonic (it folds the image).
+  auto distortionFolds = [&](const PlaneBatchState& st) {
+    const double k1 = st.camera[2], k2 = st.camera[3], f1 = s / st.beta;
+    double rcorner = 0;  // farthest corner, pinhole units
+    const Eigen::Vector2d c(cx + s * st.camera[0], cy + s * st.camera[1]);
+    for (double x : {-0.5, tracks.image.width - 0.5})
+      for (double y : {-0.5, tracks.image.height - 0.5}) rcorner = std::max(rcorner, std::hypot(x - c.x(), y - c.y()) / f1);
+    return std::abs(k1) > 1 || std::abs(k2) > 1 || rcorner >= RadialCamera::monotonicRadius(k1, k2);
+  };
   auto holdImplausible = [&](const PlaneBatchState& st) {
     bool held = false;
     if (r.camera_free[0]) {
@@ -239,17 +295,11 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
         held = true;
       }
     }
-    if (r.camera_free[2]) {
-      const double k1 = st.camera[2], k2 = st.camera[3], f1 = s / st.beta;
-      double rcorner = 0;  // farthest corner, pinhole units
-      const Eigen::Vector2d c(cx + s * st.camera[0], cy + s * st.camera[1]);
-      for (double x : {-0.5, tracks.image.width - 0.5})
-        for (double y : {-0.5, tracks.image.height - 0.5}) rcorner = std::max(rcorner, std::hypot(x - c.x(), y - c.y()) / f1);
-      if (std::abs(k1) > 1 || std::abs(k2) > 1 || rcorner >= RadialCamera::monotonicRadius(k1, k2)) {
-        why.push_back(fmt::format("distortion not determined: k1 {:.3f}, k2 {:.3f} would fold the image; held at 0", k1, k2));
-        r.camera_free[2] = r.camera_free[3] = false;
-        held = true;
-      }
+    if (r.camera_free[2] && distortionFolds(st)) {
+      why.push_back(fmt::format("distortion not determined: k1 {:.3f}, k2 {:.3f} would fold the image; held at 0", st.camera[2],
+                                st.camera[3]));
+      r.camera_free[2] = r.camera_free[3] = false;
+      held = true;
     }
     return held;
   };
@@ -259,7 +309,45 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     for (int c = 0; c < 4; ++c)
       if (!r.camera_free[c]) st->camera[c] = 0.0;
   };
-  for (int round = 0; round < 2 && std::any_of(r.camera_free.begin(), r.camera_free.end(), [](bool b) { return b; }); ++round) {
+  // A principal point the data do not determine is held before it is released (issue 13 item
+  // 4): released, it wanders in a flat valley (box.mp4's overlapping windows: 288-365 px in x
+  // from nearly the same frames, and the focal length following it), and the solve along that
+  // valley took 20 of the refinement's ~30 iterations on 150 frames. The distortion is solved
+  // first with the principal point held (an unmodelled distortion's residuals would make the
+  // point look undetermined: box-k1-neg); the bound there, with every wanted camera component a
+  // parameter with its prior, says whether the data determine the point. Its prior stays in the
+  // final bound, so its uncertainty still widens the focal length's sd.
+  const double pp_limit = kDeterminedPrincipalPointSdFraction * fmax;
+  bool pp_held_undetermined = false, camera_solved = false;
+  std::optional<PlaneBatchBound> b_held;  // that bound, when it is already the final one (below)
+  if (ro.hold_undetermined_principal_point && wanted[0]) {
+    PlaneBatchResult rd;
+    bool have_rd = false;
+    if (wanted[2] || wanted[3]) {
+      bo.camera_free = {false, false, wanted[2], wanted[3]};
+      p.start = res.state;
+      have_rd = solve(p, sigma0, &rd) && !distortionFolds(rd.state);
+    }
+    const PlaneBatchBound b0 = spreadAndBound(have_rd ? rd.state : res.state, wanted);
+    const double sx = s * std::sqrt(std::max(0.0, b0.cov_camera(0, 0)));
+    const double sy = s * std::sqrt(std::max(0.0, b0.cov_camera(1, 1)));
+    if (b0.ok && !(b0.camera_estimable[0] && b0.camera_estimable[1] && std::max(sx, sy) <= pp_limit)) {
+      r.camera_free[0] = r.camera_free[1] = false;
+      pp_held_undetermined = true;
+      camera_solved = have_rd;  // that solve was this problem's
+      if (camera_solved) b_held = b0;
+      why.push_back(fmt::format("principal point not determined (sd {:.1f}, {:.1f} px); held at ({:.1f}, {:.1f}) with its "
+                                "prior sd {:.0f} px in the bound",
+                                sx, sy, cx, cy, s * bo.camera_prior_sd[0]));
+    }
+    if (have_rd) {
+      r.iterations += rd.iterations;
+      res = std::move(rd);
+    }
+  }
+  for (int round = 0; round < 2 && !camera_solved &&
+                      std::any_of(r.camera_free.begin(), r.camera_free.end(), [](bool b) { return b; });
+       ++round) {
     bo.camera_free = r.camera_free;
     p.start = res.state;
     PlaneBatchResult rc;
@@ -330,81 +418,12 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       }
     }
   }
-  // The final residuals' spread, and their correlation along tracks, scale the bound; the bound
-  // treats the camera components in `bound_camera` as parameters (with their priors).
-  std::vector<std::vector<double>> per;
-  double ss = 0, sigma_final = 0;
-  auto spreadAndBound = [&](const PlaneBatchState& st, const std::array<bool, 4>& bound_camera) {
-    per = residualsPx(p, st, s, true);
-    const std::vector<double> all = pooled(per);
-    ss = 0;
-    for (double x : all) ss += x * x;
-    const int n_cam = static_cast<int>(std::count(r.camera_free.begin(), r.camera_free.end(), true));
-    const int n_params = 6 * (F - 1) + 1 + (3 * m - 1) + 2 * static_cast<int>(p.track_of_point.size()) + n_cam;
-    const int n_res = static_cast<int>(all.size());
-    r.final_rms_px = all.empty() ? 0.0 : std::sqrt(ss / all.size());
-    r.sigma_px = n_res > n_params ? std::sqrt(ss / (n_res - n_params)) : r.final_rms_px;
-    r.robust_sigma_px = robustSd(all);
-    r.tracks = static_cast<int>(p.track_of_point.size());
-    r.observations = n_res / 2;
-    {
-      // Pooled autocorrelation of the residuals along tracks (x and y separately), lags 1..50,
-      // summed up to its first non-positive value.
-      double c0 = 0;
-      for (double x : all) c0 += x * x;
-      double sum_rho = 0;
-      for (int lag = 1; lag <= 1000 && c0 > 0; ++lag) {
-        double c = 0;
-        for (const auto& v : per)  // v = (x0, y0, x1, y1, ...)
-          for (std::size_t i = 0; i + 2 * lag + 1 < v.size(); i += 2)
-            c += v[i] * v[i + 2 * lag] + v[i + 1] * v[i + 2 * lag + 1];
-        const double rho = c / c0;
-        if (!(rho > 0)) break;
-        sum_rho += rho;
-      }
-      r.correlation_inflation = 1 + 2 * sum_rho;
-    }
-    sigma_final = r.sigma_px * std::sqrt(r.correlation_inflation);
-    p.data.sigma_uv = sigma_final / s;
-    PlaneBatchBoundOptions bopt;
-    bopt.camera_free = bound_camera;
-    bopt.camera_prior_sd = bo.camera_prior_sd;
-    bopt.motion_covariance = true;
-    bopt.skip_undetermined_frames = true;
-    bopt.hold_beta = known_focal;
-    bopt.track_clustered = ro.track_clustered_sd;
-    return planeBatchBound(p.data, st, bopt);
-  };
-  const double pp_limit = kDeterminedPrincipalPointSdFraction * fmax;
   std::array<bool, 4> bound_camera = r.camera_free;
-  PlaneBatchBound b = spreadAndBound(res.state, bound_camera);
-  const double pp_sd_x = s * std::sqrt(std::max(0.0, b.cov_camera(0, 0)));
-  const double pp_sd_y = s * std::sqrt(std::max(0.0, b.cov_camera(1, 1)));
-  if (ro.hold_undetermined_principal_point && b.ok && r.camera_free[0] &&
-      !(b.camera_estimable[0] && b.camera_estimable[1] && std::max(pp_sd_x, pp_sd_y) <= pp_limit)) {
-    // A principal point the data do not determine is where the optimizer stopped in a flat valley
-    // (box.mp4's overlapping windows: 288-365 px in x from nearly the same frames, and the focal
-    // length following it): held at the nominal centre and the rest solved again from there. Its
-    // prior stays in the bound, so its uncertainty still widens the focal length's sd.
-    const Eigen::Vector2d at(cx + s * res.state.camera[0], cy + s * res.state.camera[1]);
-    const std::array<bool, 4> free_before = r.camera_free;
-    r.camera_free[0] = r.camera_free[1] = false;
-    bo.camera_free = r.camera_free;
-    p.start = res.state;
-    resetHeld(&p.start);
-    PlaneBatchResult rh;
-    if (solve(p, sigma_loss, &rh)) {
-      r.iterations += rh.iterations;
-      res = std::move(rh);
-      why.push_back(fmt::format("principal point not determined (sd {:.1f}, {:.1f} px at ({:.0f}, {:.0f}) px); held at ({:.1f}, "
-                                "{:.1f}) with its prior sd {:.0f} px in the bound",
-                                pp_sd_x, pp_sd_y, at.x(), at.y(), cx, cy, s * bo.camera_prior_sd[0]));
-      b = spreadAndBound(res.state, bound_camera);
-    } else {
-      r.camera_free = free_before;
-      bo.camera_free = r.camera_free;
-    }
-  }
+  if (pp_held_undetermined) bound_camera[0] = bound_camera[1] = true;  // its prior in the bound
+  // With the principal point held after the distortion's solve and no track relabelled, the
+  // state and the bound's parameters are those of the decision's bound: it is the final one.
+  const bool reuse = b_held && r.relabelled == 0 && bound_camera == wanted;
+  PlaneBatchBound b = reuse ? std::move(*b_held) : spreadAndBound(res.state, bound_camera);
   const PlaneBatchState& st = res.state;
   if (!b.ok) {
     r.message = "the refinement converged but its uncertainty could not be computed: " + b.message;
