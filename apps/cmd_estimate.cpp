@@ -117,8 +117,8 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   // q_from_data); giving any of these fixes it at the values given (defaults as shown).
   a->add_option_function<double>(
        "--q-trans-rel", [pf = &f](double v) { pf->q_trans_rel = v, pf->q_from_data = false; },
-       "fixed process noise: per-frame translation sd relative to the main plane's depth (default: from the tracks' "
-       "image motion, adapted online)")
+       "fixed process noise: per-frame translation sd relative to the main plane's depth (default: from the motion "
+       "the start measured, adapted online)")
       ->default_str(fmt::format("{}", f.q_trans_rel));
   Eigen::Matrix<double, 7, 1>& q = f.filter.q_motion;
   a->add_option_function<double>("--q-trans", [pf = &f](double v) { pf->filter.q_motion.head<3>().setConstant(v), pf->q_from_data = false; },
@@ -308,7 +308,7 @@ std::string captionOf(const std::string& name) {
   if (name == "normals.png") return "Plane normals per frame, the filter's online estimate with its sd (planes.csv)";
   if (name == "focal.png") return "Focal length per frame, the filter's online estimate with its sd (planes.csv)";
   if (name == "process_noise.png")
-    return "Process noise of the filter's prediction per frame: from the tracks' image motion, adapted to the measured "
+    return "Process noise of the filter's prediction per frame: from the motion the start measured, adapted to the measured "
            "motion (planes.csv)";
   if (name == "patch_run.png") return "Patch normals per frame (patch_normals.csv)";
   return name;
@@ -432,7 +432,7 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
     fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum{}, planes.csv, poses.csv, labels.csv, report.html{}{}{}\n",
                e.shown_out.empty() ? e.out : e.shown_out,
                r.refined.ok ? ", trajectory_online.tum" : "",
-               plotted ? ", motion/normals/focal.png" : "", write_tracks ? ", tracks.csv" : "",
+               plotted ? ", motion/normals/focal/process_noise.png" : "", write_tracks ? ", tracks.csv" : "",
                overlay ? ", overlay.mp4" : "");
   }
   return 0;

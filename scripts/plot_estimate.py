@@ -144,7 +144,7 @@ def main():
     fig.savefig(sys.argv[8])
     plt.close(fig)
 
-    # The prediction's process noise per frame (from the tracks' image motion, adapted online to
+    # The prediction's process noise per frame (from the motion the start measured, adapted online to
     # the motion the filter measured; jumps are frames taken again on a model mismatch).
     qr = sorted(qnoise)
     fig, ax = plt.subplots(figsize=(8, 4))

@@ -5,7 +5,7 @@
 //    shallow pyramid without the check does not;
 //  - the filter takes a frame whose observations its gate rejects again with more process noise
 //    (a model mismatch) instead of stopping;
-//  - the motion's process noise comes from the tracks' image motion and follows the motion the
+//  - the motion's process noise comes from the motion the start measured and follows the motion the
 //    filter measures: 0.1 and 10 deg per frame both run with it, a still stretch shrinks it and
 //    the motion after it restores it;
 //  - the plane finder keeps following a plane after its reference tracks have died (tracks that

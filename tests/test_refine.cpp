@@ -266,6 +266,21 @@ TEST(Refine, APrincipalPointTheDataDoNotDetermineIsHeldAtTheCentre) {
   EXPECT_TRUE(moved.refined.camera_free[0]);
   EXPECT_FALSE(moved.refined.camera_determined[0] && moved.refined.camera_determined[1]);
   EXPECT_GT((moved.refined.principal_point_px - centre).norm(), 0.1);
+  // With the distortion estimated too (the default), the point is judged after the distortion's
+  // own solve (stage 2 of docs/estimate.md section 4 is then that solve, and its bound the final
+  // one) and held the same way, at the same focal sd as without the distortion to within its
+  // own contribution.
+  EstimateOptions with_k = o;
+  with_k.refine.estimate_distortion = true;
+  const EstimateResult hk = estimate(s.tracks, with_k);
+  ASSERT_TRUE(hk.refined.ok) << hk.refined.message;
+  std::printf("with the distortion estimated: k1 %.4f, focal %.2f px (truth %.1f), sd %.3f px; %s\n", hk.refined.camera[2],
+              hk.refined.state.scale_px / hk.refined.state.frames.back().beta, s.focal, focalSd(hk), hk.refined.why.c_str());
+  EXPECT_FALSE(hk.refined.camera_free[0] || hk.refined.camera_free[1]);
+  EXPECT_TRUE(hk.refined.camera_free[2]);
+  EXPECT_EQ(hk.refined.principal_point_px, centre);
+  EXPECT_NE(hk.refined.why.find("held at"), std::string::npos) << hk.refined.why;
+  EXPECT_GE(focalSd(hk), focalSd(held) * (1 - 1e-6));
 }
 
 TEST(Refine, PureRotationDeterminesNoPlane) {

@@ -44,7 +44,7 @@ if command -v ffmpeg >/dev/null; then
 fi
 "$RSFM" evaluate --estimate "$TMP/e" --truth "$TMP/r/truth" >"$TMP/table.txt"
 for f in trajectory.tum planes.csv summary.json labels.csv tracks.csv overlay.mp4 report.html motion.png normals.png focal.png process_noise.png \
-         motion.svg normals.svg focal.svg evaluation.json evaluation.md; do
+         motion.svg normals.svg focal.svg process_noise.svg evaluation.json evaluation.md; do
   [ -s "$TMP/e/$f" ] || { echo "FAIL missing output $f"; exit 1; }
 done
 /usr/bin/python3 - "$TMP/e/evaluation.json" <<'PY'

@@ -424,6 +424,32 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   // state and the bound's parameters are those of the decision's bound: it is the final one.
   const bool reuse = b_held && r.relabelled == 0 && bound_camera == wanted;
   PlaneBatchBound b = reuse ? std::move(*b_held) : spreadAndBound(res.state, bound_camera);
+  if (ro.hold_undetermined_principal_point && b.ok && r.camera_free[0]) {
+    // Judged determined before the release, but not at the final optimum (the outliers gone, the
+    // camera released): held there as well, and the rest solved again from the nominal centre.
+    const double sx = s * std::sqrt(std::max(0.0, b.cov_camera(0, 0)));
+    const double sy = s * std::sqrt(std::max(0.0, b.cov_camera(1, 1)));
+    if (!(b.camera_estimable[0] && b.camera_estimable[1] && std::max(sx, sy) <= pp_limit)) {
+      const Eigen::Vector2d at(cx + s * res.state.camera[0], cy + s * res.state.camera[1]);
+      const std::array<bool, 4> free_before = r.camera_free;
+      r.camera_free[0] = r.camera_free[1] = false;
+      bo.camera_free = r.camera_free;
+      p.start = res.state;
+      resetHeld(&p.start);
+      PlaneBatchResult rh;
+      if (solve(p, sigma_loss, &rh)) {
+        r.iterations += rh.iterations;
+        res = std::move(rh);
+        why.push_back(fmt::format("principal point not determined (sd {:.1f}, {:.1f} px at ({:.0f}, {:.0f}) px); held at "
+                                  "({:.1f}, {:.1f}) with its prior sd {:.0f} px in the bound",
+                                  sx, sy, at.x(), at.y(), cx, cy, s * bo.camera_prior_sd[0]));
+        b = spreadAndBound(res.state, bound_camera);
+      } else {
+        r.camera_free = free_before;
+        bo.camera_free = r.camera_free;
+      }
+    }
+  }
   const PlaneBatchState& st = res.state;
   if (!b.ok) {
     r.message = "the refinement converged but its uncertainty could not be computed: " + b.message;

@@ -42,11 +42,6 @@ std::vector<Sol> solutions(const cv::Matx33d& H, const cv::Matx33d& K, const std
   return out;
 }
 
-/// The first frame k in 1..k2-1 whose motion reaches half of frame k2's, the motion of frame k
-/// being the median displacement (px) of the plane's reference points under its homography H[k].
-/// pair_frame / 2 assumed the motion starts at once; after a still start (the ViSP cube's first
-/// 17 frames) that frame had hardly moved, its decompositions fitted noise, and the focal
-/// length agreed best at the end of the grid (1152 px; 617 px with the still frames cut off).
 /// The median displacement (px) of the plane's reference points under its homography H[k], for
 /// k = 0..k2 (empty when the plane has no reference points or fewer homographies).
 std::vector<double> planeMotionPx(const Tracks& tracks, const FoundPlane& plane, int k2) {
@@ -70,6 +65,9 @@ std::vector<double> planeMotionPx(const Tracks& tracks, const FoundPlane& plane,
 }
 
 /// The first frame k in 1..k2-1 whose motion (planeMotionPx) reaches half of frame k2's.
+/// pair_frame / 2 assumed the motion starts at once; after a still start (the ViSP cube's first
+/// 17 frames) that frame had hardly moved, its decompositions fitted noise, and the focal
+/// length agreed best at the end of the grid (1152 px; 617 px with the still frames cut off).
 int halfMotionFrame(const std::vector<double>& motion, int k2) {
   if (static_cast<int>(motion.size()) > k2) {
     const double half = 0.5 * motion[k2];

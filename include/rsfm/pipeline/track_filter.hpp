@@ -53,13 +53,16 @@ struct TrackFilterOptions {
   /// main plane's starting depth (depth0 / beta0): q = (q_trans_rel depth)^2 for t_X, t_Y and
   /// (q_trans_rel depth beta0)^2 for t_Z beta. The filter's units follow the gauge, so an absolute
   /// Q would mean different motions for different depth0; Q must cover one frame's motion
-  /// (docs/filter.md). <= 0: use filter.q_motion as given.
+  /// (docs/filter.md). <= 0: use filter.q_motion as given. Used when q_from_data is false, and
+  /// as Q0's floor when no start measured the motion.
   double q_trans_rel = 0.01;
   /// The motion's process noise from the data (issue 14 item 4; docs/estimate.md section 3): Q0
   /// from the motion the start measured and the tracks' own image motion, then adapted online
   /// to the motion the filter measures (FilterOptions::Adaptation, on). Each omega component's
   /// sd is max(start_rotation_deg_per_frame, D / f0 rad) and the translation's sd
-  /// max(start_translation_rel_per_frame, D / f0) of the main plane's starting depth, with D the
+  /// max(start_translation_rel_per_frame, D / f0) of the main plane's starting depth (depth0 /
+  /// beta0, as q_trans_rel; both are relative to the depth from the centre of projection,
+  /// (depth0 + 1) / beta0, so Q0 is 0.91 of the motion at depth0 10), with D the
   /// 90th percentile over the frames of the median displacement between consecutive frames of
   /// the tracks that enter the filter (at least sigma_px; D / f0 is the rotation, and the
   /// translation relative to depth, that move the image by D px) and f0 the starting focal
@@ -71,7 +74,7 @@ struct TrackFilterOptions {
   bool q_from_data = true;
   /// The start's measured motion per moving frame (vision::StartHypothesis; set by
   /// rsfm::startOptions; 0: no start measured it): rotation (deg) and translation relative to
-  /// the main plane's depth on the optical axis.
+  /// the main plane's depth on the optical axis from the centre of projection.
   double start_rotation_deg_per_frame = 0.0, start_translation_rel_per_frame = 0.0;
   std::vector<Eigen::Vector3d> initial_normals;
   std::vector<double> initial_distance_ratios;
@@ -114,7 +117,7 @@ struct TrackFrame {
   double q_scale = 1.0;  ///< motion process noise multiplier of this step (FilterOptions::mismatch_retries)
   /// The process noise this step's prediction used (adaptation and mismatch retries included):
   /// each omega component's sd (deg per frame) and the translation's sd (t_X; relative to the
-  /// main plane's starting depth, per frame).
+  /// main plane's starting depth, depth0 / beta0, per frame).
   double q_omega_sd_deg = 0.0, q_trans_sd_rel = 0.0;
 };
 
@@ -135,7 +138,7 @@ struct TrackFilterResult {
   std::vector<std::vector<Eigen::Vector3d>> pass_N;  ///< final planes of each pass
   /// The motion's process noise (TrackFilterOptions::q_from_data): the tracks' per-frame image
   /// motion D (px, 0 when not from the data), and Q0 as sds (omega per component, deg per
-  /// frame; translation relative to the starting depth per frame); from data: Q0 came from the
+  /// frame; translation relative to the starting depth depth0 / beta0 per frame); from data: Q0 came from the
   /// data (TrackFilterOptions::q_from_data); adapted: the online adaptation ran.
   double image_motion_px = 0.0, q0_omega_sd_deg = 0.0, q0_trans_sd_rel = 0.0;
   /// TrackFilterOptions' start motion the noise started from (0: none).

@@ -1,6 +1,7 @@
 #pragma once
 // Outputs of `rsfm estimate` / `rsfm run` (docs/outputs.md, "rsfm estimate"): trajectory.tum,
-// planes.csv, summary.json, labels.csv, poses.csv and the plots motion/normals/focal (.png, .svg);
+// planes.csv, summary.json, labels.csv, poses.csv and the plots motion/normals/focal/process_noise
+// (.png, .svg);
 // with a refinement (pipeline/refine.hpp) its result is the main one and the filter's is kept in
 // trajectory_online.tum, planes.csv's per-frame rows and summary.json's "online" section.
 #include <nlohmann/json.hpp>
