@@ -271,8 +271,6 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   // Stage 2: the camera released from there. A camera no camera could be (the principal point
   // beyond max_principal_offset, a distortion folding the image) is held again and the rest
   // solved once more.
-  // Holds (in r.camera_free, with the reason in `why`) the components of the camera in `st` that
-  // no camera could have; true when it held any.
   // A distortion no lens has: |k1| or |k2| above 1, or the image's farthest corner beyond the
   // radius where the radial map stops being monotonic (it folds the image).
   auto distortionFolds = [&](const PlaneBatchState& st) {
@@ -283,6 +281,8 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       for (double y : {-0.5, tracks.image.height - 0.5}) rcorner = std::max(rcorner, std::hypot(x - c.x(), y - c.y()) / f1);
     return std::abs(k1) > 1 || std::abs(k2) > 1 || rcorner >= RadialCamera::monotonicRadius(k1, k2);
   };
+  // Holds (in r.camera_free, with the reason in `why`) the components of the camera in `st` that
+  // no camera could have; true when it held any.
   auto holdImplausible = [&](const PlaneBatchState& st) {
     bool held = false;
     if (r.camera_free[0]) {
@@ -318,6 +318,13 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   // parameter with its prior, says whether the data determine the point. Its prior stays in the
   // final bound, so its uncertainty still widens the focal length's sd.
   const double pp_limit = kDeterminedPrincipalPointSdFraction * fmax;
+  // Whether bound `bd` leaves the principal point undetermined (rsfm/determinacy.hpp), with its
+  // sds (px) in *sx, *sy.
+  auto ppUndetermined = [&](const PlaneBatchBound& bd, double* sx, double* sy) {
+    *sx = s * std::sqrt(std::max(0.0, bd.cov_camera(0, 0)));
+    *sy = s * std::sqrt(std::max(0.0, bd.cov_camera(1, 1)));
+    return !(bd.camera_estimable[0] && bd.camera_estimable[1] && std::max(*sx, *sy) <= pp_limit);
+  };
   bool pp_held_undetermined = false, camera_solved = false;
   std::optional<PlaneBatchBound> b_held;  // that bound, when it is already the final one (below)
   if (ro.hold_undetermined_principal_point && wanted[0]) {
@@ -329,9 +336,8 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       have_rd = solve(p, sigma0, &rd) && !distortionFolds(rd.state);
     }
     const PlaneBatchBound b0 = spreadAndBound(have_rd ? rd.state : res.state, wanted);
-    const double sx = s * std::sqrt(std::max(0.0, b0.cov_camera(0, 0)));
-    const double sy = s * std::sqrt(std::max(0.0, b0.cov_camera(1, 1)));
-    if (b0.ok && !(b0.camera_estimable[0] && b0.camera_estimable[1] && std::max(sx, sy) <= pp_limit)) {
+    double sx = 0, sy = 0;
+    if (b0.ok && ppUndetermined(b0, &sx, &sy)) {
       r.camera_free[0] = r.camera_free[1] = false;
       pp_held_undetermined = true;
       camera_solved = have_rd;  // that solve was this problem's
@@ -427,9 +433,8 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   if (ro.hold_undetermined_principal_point && b.ok && r.camera_free[0]) {
     // Judged determined before the release, but not at the final optimum (the outliers gone, the
     // camera released): held there as well, and the rest solved again from the nominal centre.
-    const double sx = s * std::sqrt(std::max(0.0, b.cov_camera(0, 0)));
-    const double sy = s * std::sqrt(std::max(0.0, b.cov_camera(1, 1)));
-    if (!(b.camera_estimable[0] && b.camera_estimable[1] && std::max(sx, sy) <= pp_limit)) {
+    double sx = 0, sy = 0;
+    if (ppUndetermined(b, &sx, &sy)) {
       const Eigen::Vector2d at(cx + s * res.state.camera[0], cy + s * res.state.camera[1]);
       const std::array<bool, 4> free_before = r.camera_free;
       r.camera_free[0] = r.camera_free[1] = false;

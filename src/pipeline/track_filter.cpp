@@ -126,8 +126,9 @@ double imageMotionPx(const Tracks& tracks, const Enters& enters) {
 }
 
 /// Motion, beta and the update's counts of one frame.
+/// `depth`: the main plane's starting depth, the unit of q_trans_sd_rel.
 template <class Model>
-TrackFrame frameOf(const RecursiveFilter<Model>& f, const FrameStats& fs, int frame, int observed) {
+TrackFrame frameOf(const RecursiveFilter<Model>& f, const FrameStats& fs, int frame, int observed, double depth) {
   TrackFrame tf;
   tf.frame = frame;
   tf.R = f.rotation();
@@ -141,7 +142,7 @@ TrackFrame frameOf(const RecursiveFilter<Model>& f, const FrameStats& fs, int fr
   tf.q_scale = fs.q_scale;
   const FilterOptions& fo = f.options();
   tf.q_omega_sd_deg = std::sqrt(fo.q_motion[3] * fs.q_rotation_scale) * 180.0 / M_PI;
-  tf.q_trans_sd_rel = std::sqrt(fo.q_motion[0] * fs.q_translation_scale);  // / depth_start, by the caller
+  tf.q_trans_sd_rel = std::sqrt(fo.q_motion[0] * fs.q_translation_scale) / depth;
   return tf;
 }
 
@@ -267,8 +268,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       }
       res.stopped = afterStep(f, fs, tracks.first_frame + k);
       if (!res.stopped.empty()) break;
-      TrackFrame tf = frameOf(f, fs, tracks.first_frame + k, static_cast<int>(obs.size()));
-      tf.q_trans_sd_rel /= depth_start;
+      TrackFrame tf = frameOf(f, fs, tracks.first_frame + k, static_cast<int>(obs.size()), depth_start);
       accumulateResiduals(f, obs, fs, std::vector<int>(obs.size(), 0), s, &sum2, &cnt, &tf.rms_px);
       res.frames.push_back(tf);
       if (progress) progress(k + 1, F);
@@ -391,8 +391,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       }
       res.stopped = afterStep(f, fs, tracks.first_frame + k);
       if (!res.stopped.empty()) break;
-      TrackFrame tf = frameOf(f, fs, tracks.first_frame + k, static_cast<int>(obs.size()));
-      tf.q_trans_sd_rel /= depth_start;
+      TrackFrame tf = frameOf(f, fs, tracks.first_frame + k, static_cast<int>(obs.size()), depth_start);
       recordPlanes(&tf);
       accumulateResiduals(f, obs, fs, grp, s, &sum2, &cnt, &tf.rms_px);
       res.frames.push_back(tf);

@@ -303,8 +303,6 @@ class RecursiveFilter {
     adapt_scale_.setOnes();
     syncReferences(ekf_.x());
   }
-  /// FilterOptions::Adaptation: the current scales of q_motion's translation and rotation blocks.
-  const Eigen::Vector2d& processNoiseScale() const { return adapt_scale_; }
 
   const Model& model() const { return model_; }
   Model& mutableModel() { return model_; }
