@@ -138,6 +138,10 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
       ->capture_default_str();
   a->add_option("--passes", f.passes, "passes over the sequence (>1: restart from the previous pass's planes and focal)")
       ->capture_default_str();
+  a->add_option_function<double>("--still-px", [e](double v) { e->est.still_px = e->pat.patch.still_px = v; },
+                                 "still start: frames before the motion exceeds this (px) are still, the reference frame is "
+                                 "the last of them (plane models: a plane's worth of tracks, patches: the median; <= 0: off)")
+      ->default_str(fmt::format("{}", e->est.still_px));
   a->add_option("--max-planes", e->est.finder.max_planes, "planes kept at most")->capture_default_str();
   a->add_option("--min-plane-tracks", e->est.finder.min_plane_tracks, "reference tracks a plane needs")
       ->capture_default_str();
@@ -199,6 +203,7 @@ std::string finishEstimateOptions(EstimateCli* e) {
   if (f.filter.iterations < 1) return "--iterations must be >= 1";
   if (f.filter.iterate_after_frames < 0) return "--iekf-after must be >= 0";
   if (f.passes < 1 || f.passes > 10) return "--passes must be in 1..10";
+  if (std::isnan(e->est.still_px)) return "--still-px must be a number";
   if (e->est.finder.max_planes < 1) return "--max-planes must be >= 1";
   if (e->est.finder.min_plane_tracks < 5) return "--min-plane-tracks must be >= 5";
   if (!(e->est.finder.ransac_px > 0)) return "--ransac-px must be positive";
@@ -358,7 +363,14 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
     cands.push_back({{"verdict", vision::toString(c.verdict)}, {"label", c.label}, {"tracks", c.members.size()},
                      {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction}});
   if (!r.start.hypotheses.empty()) rep.extra["start"] = startJson(r.start);
-  rep.extra["plane_finding"] = {{"pair_frame", tracks.first_frame + pf.pair_frame}, {"candidates", cands},
+  const int reference = tracks.first_frame + r.still.still_frames;
+  rep.extra["still_start"] = {{"reference_frame", reference},
+                              {"still_frames", r.still.still_frames},
+                              {"threshold_px", r.still.threshold_px},
+                              {"noise_px", r.still.noise_px},
+                              {"moving_tracks", r.still.moving_tracks},
+                              {"still_px", e.est.still_px}};
+  rep.extra["plane_finding"] = {{"pair_frame", reference + pf.pair_frame}, {"candidates", cands},
                                 {"manual", !e.est.finder.rois.empty()}};
   rep.extra["stage_seconds"] = {{"plane_finding", r.seconds.plane_finding}, {"start", r.seconds.start},
                                 {"filter", r.seconds.filter}, {"refinement", r.seconds.refinement}};

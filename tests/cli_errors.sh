@@ -302,6 +302,7 @@ check "estimate: fewer than 5 points (manual planes)" 2 "$V4" -- estimate --trac
 check "estimate: bad model" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --model cubes --quiet
 check "estimate: negative focal" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --focal-px -3 --quiet
 check "estimate: negative iekf-after" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --iterations 3 --iekf-after -1 --quiet
+check "estimate: still-px not a number" 2 "$V4" -- estimate --tracks "$T4/four.csv" --out "$V4" --still-px nan --quiet
 
 # Affine patches (docs/tracks.md "patches.csv", docs/patches.md).
 check "experiment patches: negative noise" 2 "$D" -- experiment patches --out "$D" --plane-noise 0.1,-0.2

@@ -10,6 +10,8 @@
 //    the motion after it restores it;
 //  - the plane finder keeps following a plane after its reference tracks have died (tracks that
 //    joined later carry it);
+//  - the reference frame is taken where the scene starts to move (a camera, or an object before a
+//    still background), and the still frames before it carry its pose;
 //  - a sequence in which nothing moves says so;
 //  - tracks that run out before the last frame end the estimate there, with a result.
 #include <gtest/gtest.h>
@@ -26,6 +28,7 @@
 #include "rsfm/render/scene_render.hpp"
 #include "rsfm/vision/klt_tracker.hpp"
 #include "rsfm/vision/plane_finder.hpp"
+#include "rsfm/vision/still_start.hpp"
 
 namespace rsfm {
 namespace {
@@ -248,6 +251,111 @@ TEST(Adaptive, NothingMovingSaysSo) {
     FAIL() << "a still sequence was estimated";
   } catch (const NoPlaneFound& e) {
     EXPECT_NE(std::string(e.what()).find("nothing moves"), std::string::npos) << e.what();
+  }
+}
+
+/// Tracks from frame `from` on (the frames before dropped).
+Tracks tracksFrom(const Tracks& t, int from) {
+  Tracks s = t;
+  s.first_frame = t.first_frame + from;
+  s.frames.assign(t.frames.begin() + from, t.frames.end());
+  return s;
+}
+
+TEST(Adaptive, TheReferenceFrameIsWhereTheSceneStartsToMove) {
+  // box-still-start: frames 0-30 show the first pose (30 still frames, then the orbit's first
+  // pose), the camera moves from frame 31. object-still-start: the same for a box turned before a
+  // still camera and a still wall, whose tracks never move. box-orbit moves from frame 1.
+  for (const char* name : {"box-still-start", "object-still-start", "box-orbit"}) {
+    SCOPED_TRACE(name);
+    const render::Regime* r = render::builtinRegimeSuite().find(name);
+    ASSERT_NE(r, nullptr);
+    const int still = r->options.still_start;
+    const test::RegimeTracks rt = test::regimeTracks(r->options, 0.2, 11);
+    const vision::StillStart s = vision::findStillStart(rt.tracks, 0.25, vision::kHomographyTestTracks);
+    std::printf("%s: %d still frames (truth %d), noise %.3f px (truth 0.2 x sqrt 2 = 0.283), threshold %.2f px, %d tracks moved\n",
+                name, s.still_frames, still, s.noise_px, s.threshold_px, s.moving_tracks);
+    EXPECT_TRUE(s.moves);
+    if (still > 0) EXPECT_NEAR(s.noise_px, 0.2 * std::sqrt(2.0), 0.05);  // a still pair: noise only
+    // The first moving frame moves the image by about 1 px on these orbits against a 1.1 px
+    // threshold: the motion is found within 2 frames of its start, never before it.
+    EXPECT_GE(s.still_frames, still);
+    EXPECT_LE(s.still_frames, still + 2);
+    if (still == 0) continue;
+    // The pipeline on the whole sequence is the pipeline on the frames from the reference frame,
+    // with the still frames carrying the reference pose.
+    const EstimateResult whole = estimate(rt.tracks, EstimateOptions{});
+    const EstimateResult moving = estimate(tracksFrom(rt.tracks, s.still_frames), EstimateOptions{});
+    ASSERT_TRUE(whole.refined.ok) << whole.refined.message;
+    ASSERT_TRUE(moving.refined.ok) << moving.refined.message;
+    EXPECT_EQ(whole.still.still_frames, s.still_frames);
+    EXPECT_EQ(moving.still.still_frames, 0);
+    const TrackFilterResult& w = whole.main();
+    const TrackFilterResult& m = moving.main();
+    ASSERT_EQ(static_cast<int>(w.frames.size()), rt.tracks.numFrames());
+    ASSERT_EQ(w.frames.size(), m.frames.size() + s.still_frames);
+    EXPECT_EQ(w.still_frames, s.still_frames);
+    EXPECT_EQ(whole.online.still_frames, s.still_frames);
+    for (int k = 0; k <= s.still_frames; ++k) {
+      EXPECT_EQ(w.frames[k].frame, k);
+      EXPECT_TRUE(w.frames[k].R.isIdentity(0.0) && w.frames[k].t.isZero(0.0)) << "frame " << k;
+      EXPECT_EQ(whole.online.frames[k].frame, k);
+    }
+    EXPECT_EQ(w.frames.back().beta, m.frames.back().beta) << "the still frames changed the estimate";
+    EXPECT_TRUE(w.frames.back().R.isApprox(m.frames.back().R, 0.0));
+    EXPECT_EQ(whole.refined.cov_motion.size(), w.frames.size());
+    // Every input id has a label; the start and refinement are those of the moving frames.
+    EXPECT_EQ(static_cast<int>(whole.labels().size()), rt.tracks.idBound());
+    const double f = w.scale_px / w.frames.back().beta;
+    ASSERT_TRUE(rt.truth.focal_px.has_value());
+    std::printf("%s: focal %.1f px (truth %.1f)\n", name, f, *rt.truth.focal_px);
+    EXPECT_NEAR(f / *rt.truth.focal_px, 1.0, 0.02);
+  }
+  // Off: the first frame is the reference.
+  const test::RegimeTracks rt = test::regimeTracks(render::builtinRegimeSuite().find("box-still-start")->options, 0.2, 11);
+  EXPECT_EQ(vision::findStillStart(rt.tracks, 0.0, vision::kHomographyTestTracks).still_frames, 0);
+  EXPECT_THROW(vision::findStillStart(rt.tracks, std::nan(""), 8), std::invalid_argument);
+}
+
+TEST(Adaptive, TheStillTestIsTheTrackingNoisesAndAFewJumpingTracksDoNotMoveTheScene) {
+  // 70 frames of 200 still points with 0.5 px noise, 5 of which jump by 5 px at frame 20 (a
+  // tracker's swaps); from frame 40 the camera turns: every point moves by 0.1-0.2 px per frame.
+  // The same with an "object": from frame 40 the 20 points of one corner move by 0.2 px per frame.
+  for (const bool object : {false, true}) {
+    SCOPED_TRACE(object ? "object" : "camera");
+    Tracks t;
+    t.image = ImageInfo::centred(640, 480);
+    t.frames.resize(70);
+    std::mt19937 rng(5);
+    std::normal_distribution<double> g(0.0, 0.5);
+    for (int k = 0; k < 70; ++k)
+      for (int i = 0; i < 200; ++i) {
+        Eigen::Vector2d x(20 + 30 * (i % 20), 20 + 40 * (i / 20));
+        if (i >= 195 && k >= 20) x.x() += 5.0;
+        const bool moves = !object || (i % 20 < 4 && i / 20 < 5);
+        if (k >= 40 && moves) x.x() += (object ? 0.2 : 0.1 * (1.0 + x.y() / 480)) * (k - 39);
+        t.frames[k].push_back({i, x + Eigen::Vector2d(g(rng), g(rng))});
+      }
+    const vision::StillStart s = vision::findStillStart(t, 0.25, vision::kHomographyTestTracks);
+    std::printf("%s: noise %.3f px (truth 0.707), threshold %.2f px, still frames %d, %d tracks moved\n",
+                object ? "object" : "camera", s.noise_px, s.threshold_px, s.still_frames, s.moving_tracks);
+    EXPECT_NEAR(s.noise_px, 0.5 * std::sqrt(2.0), 0.1);
+    EXPECT_TRUE(s.moves);
+    if (!object) {
+      // Coherent motion shows through 0.5 px of noise once it passes the homography fit's own
+      // noise (4 x 1.18 x 0.63 x sqrt(8 / 200) = 0.59 px: frame 44 with 0.1-0.2 px per frame);
+      // the per-track threshold alone (2.5 px) would have waited until frame 56.
+      EXPECT_GE(s.still_frames, 39);
+      EXPECT_LE(s.still_frames, 43);
+    } else {
+      // The object's 20 tracks pass 2.5 px at frames 51-54 (0.2 px per frame); not before 40.
+      EXPECT_GE(s.still_frames, 39);
+      EXPECT_LE(s.still_frames, 56);
+    }
+    Tracks noise_only = t;
+    noise_only.frames.resize(40);
+    EXPECT_FALSE(vision::findStillStart(noise_only, 0.25, vision::kHomographyTestTracks).moves)
+        << "noise and 5 jumping tracks moved the scene";
   }
 }
 

@@ -18,6 +18,33 @@ namespace {
 std::string rf_message(const EstimateResult& er) {
   return er.refined.message.empty() ? std::string("no message") : er.refined.message.substr(0, er.refined.message.find(';'));
 }
+
+/// Prepends `n` still frames to a run whose frames[0] is the reference frame: copies of its
+/// record (pose identity, the reference structure and its covariance) numbered from
+/// frames[0].frame - n, without observations.
+void prependStill(TrackFilterResult* r, int n) {
+  if (n <= 0 || r->frames.empty()) return;
+  TrackFrame still = r->frames.front();
+  still.observed = still.used = still.gated = 0;
+  still.nis_per_dof = still.rms_px = 0.0;
+  still.q_scale = 1.0;
+  still.q_omega_sd_deg = still.q_trans_sd_rel = 0.0;
+  std::vector<TrackFrame> frames;
+  frames.reserve(r->frames.size() + n);
+  for (int j = 0; j < n; ++j) {
+    frames.push_back(still);
+    frames.back().frame = r->frames.front().frame - n + j;
+  }
+  frames.insert(frames.end(), r->frames.begin(), r->frames.end());
+  r->frames = std::move(frames);
+  r->still_frames = n;
+}
+
+/// Labels sized for every id of `input` (tracks that lived only before the reference frame: -2).
+void coverIds(std::vector<int>* labels, const Tracks& input) {
+  const std::size_t n = static_cast<std::size_t>(input.idBound());
+  if (labels->size() < n) labels->resize(n, -2);
+}
 }  // namespace
 
 // Documented in pipeline/estimate.hpp.
@@ -112,6 +139,22 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     undistorted.image.cx = o.principal_point->x();
     undistorted.image.cy = o.principal_point->y();
     known.refine.estimate_principal_point = false;
+  }
+  // The still start (issue 14 item 1): the reference frame is the last frame before the scene
+  // moves; the stages run on the tracks from there.
+  r.still = vision::findStillStart(*t, o.still_px, vision::kHomographyTestTracks);
+  const int still = r.still.still_frames;
+  Tracks from_motion;
+  if (still > 0) {
+    from_motion.image = t->image;
+    from_motion.source = t->source;
+    from_motion.first_frame = t->first_frame + still;
+    from_motion.frames.assign(t->frames.begin() + still, t->frames.end());
+    say(fmt::format("still: frames {}-{} are still (fewer than {} tracks more than {:.2f} px from frame {}; tracking noise "
+                    "{:.2f} px); the reference frame is {}",
+                    t->first_frame, t->first_frame + still - 1, vision::kHomographyTestTracks, r.still.threshold_px,
+                    t->first_frame, r.still.noise_px, from_motion.first_frame));
+    t = &from_motion;
   }
   const Tracks& tracks = *t;
   r.image = tracks.image;
@@ -226,6 +269,18 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     }
   }
   if (start_at_grid_end && !(r.refined.ok && r.refined.focal_determined)) say(std::string("warning: ") + kFocalGridEndWarning);
+  if (still > 0) {
+    // The still frames carry the reference frame's pose: every input frame has a record.
+    prependStill(&r.online, still);
+    coverIds(&r.planes.labels, input);
+    if (r.refined.ok) {
+      prependStill(&r.refined.state, still);
+      if (!r.refined.cov_motion.empty())
+        r.refined.cov_motion.insert(r.refined.cov_motion.begin(), still, Eigen::Matrix<double, 6, 6>::Zero());
+      for (int& k : r.refined.undetermined_frames) k += still;
+      coverIds(&r.refined.labels, input);
+    }
+  }
   return r;
 }
 
@@ -252,6 +307,7 @@ PatchEstimateResult estimatePatches(const PatchTracks& tracks, const PatchEstima
     eo.filter.model = TrackModel::Planes;
     eo.filter.focal_px = po.focal_px;
     eo.finder = o.finder;
+    eo.still_px = po.still_px;
     eo.finder.min_plane_tracks = std::min(eo.finder.min_plane_tracks, vision::kHomographyTestTracks);
     try {
       const EstimateResult er = estimate(centres, eo);

@@ -178,7 +178,7 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
     pn["initial_omega_sd_deg"] = on.q0_omega_sd_deg;
     pn["initial_translation_sd_rel"] = on.q0_trans_sd_rel;
     std::vector<double> w, t;
-    for (std::size_t k = 1; k < on.frames.size(); ++k) {
+    for (std::size_t k = static_cast<std::size_t>(on.still_frames) + 1; k < on.frames.size(); ++k) {  // after the reference frame
       w.push_back(on.frames[k].q_omega_sd_deg);
       t.push_back(on.frames[k].q_trans_sd_rel);
     }

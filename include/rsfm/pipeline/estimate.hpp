@@ -23,6 +23,7 @@
 #include "rsfm/vision/camera_file.hpp"
 #include "rsfm/vision/plane_finder.hpp"
 #include "rsfm/vision/plane_init.hpp"
+#include "rsfm/vision/still_start.hpp"
 
 namespace rsfm {
 
@@ -45,10 +46,24 @@ struct EstimateOptions {
   std::optional<vision::CameraCalibration> camera;
   /// A known principal point (px): the tracks' image's is replaced by it and held.
   std::optional<Eigen::Vector2d> principal_point;
+  /// The still start (issue 14 item 1, vision/still_start.hpp, docs/estimate.md section 0):
+  /// until a plane's worth of tracks (kHomographyTestTracks) are more than max(still_px, 4 x the
+  /// measured tracking noise) from where they were in the first frame, frames are still; the
+  /// reference frame is the last still one and the frames before it carry its pose. 0.25 px is
+  /// PatchPipelineOptions::still_px's value: a tripod's KLT tracks jitter by ~0.01 px (the ViSP
+  /// cube's 17 still frames), its first moving frame moved 0.3 px. <= 0: the first frame is the
+  /// reference.
+  double still_px = 0.25;
 };
 
 struct EstimateResult {
-  vision::PlaneFinding planes;      ///< label per track, every candidate plane, the pair frame
+  /// The still start: the stages below ran on the tracks from frame still.still_frames (the
+  /// reference frame, an index into the input's frames) on; the still frames before it were
+  /// prepended to `online` and `refined` as copies of the reference frame's record
+  /// (TrackFilterResult::still_frames), so both cover every input frame. Labels cover every input
+  /// id (a track that ended before the reference frame: -2).
+  vision::StillStart still;
+  vision::PlaneFinding planes;      ///< label per track, every candidate plane, the pair frame (an index from the reference frame)
   vision::PlaneStart start;         ///< the homography start (ok = false: not tried, or refused: note says why)
   bool start_tried = false;
   TrackFilterOptions filter_used;   ///< the filter's options after the start (and a known camera)

@@ -122,7 +122,11 @@ struct TrackFrame {
 };
 
 struct TrackFilterResult {
-  std::vector<TrackFrame> frames;   ///< frames[0] is the reference frame (prior)
+  std::vector<TrackFrame> frames;   ///< frames[still_frames] is the reference frame (prior)
+  /// Still frames before the reference frame (EstimateOptions::still_px): copies of the reference
+  /// frame's record with their own frame numbers - the reference pose (R = I, t = 0), its
+  /// structure, no observations. 0 from runTrackFilter itself.
+  int still_frames = 0;
   double scale_px = 0.0;
   int planes = 0;
   std::vector<int> plane_tracks;     ///< tracks that entered the filter, per plane (point: one entry)

@@ -1,0 +1,47 @@
+#pragma once
+// Where the scene starts to move (issue 14 item 1; docs/estimate.md section 0): the frames before
+// are still (the camera and every object where they were in the first frame), and the pipeline
+// takes its reference frame at the last of them.
+#include "rsfm/track/tracks.hpp"
+
+namespace rsfm::vision {
+
+struct StillStart {
+  /// Frames after the first that are still: frames 0..still_frames show the first frame's scene
+  /// from the first frame's camera, and the motion starts at frame still_frames + 1 (indices into
+  /// the tracks' frames). 0: the first frame pair already moves, or nothing ever moves.
+  int still_frames = 0;
+  /// The tracking noise the test measured: per axis, the sd of the frame 0 -> 1 displacements
+  /// around their least-median-of-squares homography (px; sqrt 2 x one observation's noise; 0
+  /// when fewer than 8 tracks span the pair). A still pair's displacements are noise only, a
+  /// moving pair's are a homography of the dominant surface plus noise and the other surfaces'
+  /// parallax at that short baseline (an upper bound).
+  double noise_px = 0.0;
+  /// A track has moved once it is this far from its still position (px): max(still_px,
+  /// 4 noise_px), which noise alone passes with probability exp(-8).
+  double threshold_px = 0.0;
+  /// At the first moving frame: the tracks that showed it (all the frame's tracks when the
+  /// dominant surface moved; 0: nothing moved).
+  int moving_tracks = 0;
+  /// false: no frame moves.
+  bool moves = false;
+};
+
+/// The still start of `tracks`. Frame k (k = 1, 2, ...) moves the scene when, over the tracks
+/// alive in frames 0 and k,
+///  (a) the dominant motion - their RANSAC homography from frame 0 to k - displaces them by a
+///      median of more than still_px (and more than 4 x its own fit's noise at the median,
+///      noise_px sqrt(8 / n) per axis): a camera that moves, turns or shakes, or an object that
+///      fills most of the view; a homography averages the tracks' independent noise away, so
+///      0.25 px of coherent motion shows under 0.5 px of noise; or
+///  (b) at least `min_tracks` (a plane's worth, kHomographyTestTracks) are more than threshold_px
+///      from their still positions: an object before a still background; a few tracks that jump
+///      (a tracker's swaps) do not move the scene.
+/// A track's still position is its mean over the still frames so far (frame 0 alone would give a
+/// track whose frame-0 position is off by its noise a new chance to pass the threshold in every
+/// frame).
+/// still_frames = k - 1 for the first such k. `still_px` <= 0 turns the test off (still_frames
+/// 0, moves true). Throws std::invalid_argument when still_px is NaN or min_tracks < 1.
+StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks);
+
+}  // namespace rsfm::vision
