@@ -344,6 +344,20 @@ void writeHtmlReport(io::AtomicFileSet* files, const std::string& dir, const nlo
 
 }  // namespace
 
+namespace {
+/// The held frames as input frame numbers, one [first, last] pair per stretch.
+nlohmann::json heldFrames(const Tracks& tracks, const vision::StillStart& s) {
+  nlohmann::json runs = nlohmann::json::array();
+  for (size_t i = 0; i < s.held.size();) {
+    size_t j = i;
+    while (j + 1 < s.held.size() && s.held[j + 1] == s.held[j] + 1) ++j;
+    runs.push_back({tracks.first_frame + s.held[i], tracks.first_frame + s.held[j]});
+    i = j + 1;
+  }
+  return runs;
+}
+}  // namespace
+
 EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult& r, const EstimateCli& e) {
   const vision::PlaneFinding& pf = r.planes;
   rep.tracks = &tracks;
@@ -369,6 +383,7 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
                               {"threshold_px", r.still.threshold_px},
                               {"noise_px", r.still.noise_px},
                               {"moving_tracks", r.still.moving_tracks},
+                              {"held_frames", heldFrames(tracks, r.still)},
                               {"still_px", e.est.still_px}};
   rep.extra["plane_finding"] = {{"pair_frame", reference + pf.pair_frame}, {"candidates", cands},
                                 {"manual", !e.est.finder.rois.empty()}};

@@ -19,25 +19,37 @@ std::string rf_message(const EstimateResult& er) {
   return er.refined.message.empty() ? std::string("no message") : er.refined.message.substr(0, er.refined.message.find(';'));
 }
 
-/// Prepends `n` still frames to a run whose frames[0] is the reference frame: copies of its
-/// record (pose identity, the reference structure and its covariance) numbered from
-/// frames[0].frame - n, without observations.
-void prependStill(TrackFilterResult* r, int n) {
-  if (n <= 0 || r->frames.empty()) return;
-  TrackFrame still = r->frames.front();
-  still.observed = still.used = still.gated = 0;
-  still.nis_per_dof = still.rms_px = 0.0;
-  still.q_scale = 1.0;
-  still.q_omega_sd_deg = still.q_trans_sd_rel = 0.0;
+/// Puts the still frames back into a run on the frames `kept` (indices into the input, whose
+/// first frame is `first_frame`): every input frame from the first up to the run's last gets a
+/// record, a left-out one a copy of the record of the kept frame before it (the reference's
+/// before the reference frame) with its own frame number, no observations and `still` set.
+/// `cov` (per kept frame, may be empty) is filled the same way, zero before the reference.
+template <typename Cov>
+void fillStill(TrackFilterResult* r, std::vector<Cov>* cov, const std::vector<int>& kept, int first_frame) {
+  if (r->frames.empty()) return;
+  const int last = kept[r->frames.size() - 1];
   std::vector<TrackFrame> frames;
-  frames.reserve(r->frames.size() + n);
-  for (int j = 0; j < n; ++j) {
-    frames.push_back(still);
-    frames.back().frame = r->frames.front().frame - n + j;
+  std::vector<Cov> covs;
+  frames.reserve(static_cast<size_t>(last + 1));
+  size_t i = 0;  // the kept frame at or before k
+  for (int k = 0; k <= last; ++k) {
+    while (i + 1 < r->frames.size() && kept[i + 1] <= k) ++i;
+    const bool is_kept = kept[i] == k;
+    TrackFrame f = r->frames[i];
+    if (!is_kept) {
+      f.frame = first_frame + k;
+      f.observed = f.used = f.gated = 0;
+      f.nis_per_dof = f.rms_px = 0.0;
+      f.q_scale = 1.0;
+      f.q_omega_sd_deg = f.q_trans_sd_rel = 0.0;
+      f.still = true;
+    }
+    frames.push_back(std::move(f));
+    if (cov && !cov->empty()) covs.push_back(k < kept[0] ? Cov::Zero() : (*cov)[i]);
   }
-  frames.insert(frames.end(), r->frames.begin(), r->frames.end());
   r->frames = std::move(frames);
-  r->still_frames = n;
+  r->still_frames = kept[0];
+  if (cov && !cov->empty()) *cov = std::move(covs);
 }
 
 /// Labels sized for every id of `input` (tracks that lived only before the reference frame: -2).
@@ -140,20 +152,44 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     undistorted.image.cy = o.principal_point->y();
     known.refine.estimate_principal_point = false;
   }
-  // The still start (issue 14 item 1): the reference frame is the last frame before the scene
-  // moves; the stages run on the tracks from there.
+  // The still start and the later still stretches (issue 14 item 1): the reference frame is the
+  // last frame before the scene moves, and the stages run on the frames from there without the
+  // later still frames.
   r.still = vision::findStillStart(*t, o.still_px, vision::kHomographyTestTracks);
   const int still = r.still.still_frames;
+  std::vector<int> kept;
+  {
+    size_t h = 0;
+    for (int k = still; k < t->numFrames(); ++k) {
+      while (h < r.still.held.size() && r.still.held[h] < k) ++h;
+      if (h == r.still.held.size() || r.still.held[h] != k) kept.push_back(k);
+    }
+  }
   Tracks from_motion;
-  if (still > 0) {
+  if (static_cast<int>(kept.size()) < t->numFrames()) {
     from_motion.image = t->image;
     from_motion.source = t->source;
     from_motion.first_frame = t->first_frame + still;
-    from_motion.frames.assign(t->frames.begin() + still, t->frames.end());
-    say(fmt::format("still: frames {}-{} are still (fewer than {} tracks more than {:.2f} px from frame {}; tracking noise "
-                    "{:.2f} px); the reference frame is {}",
-                    t->first_frame, t->first_frame + still - 1, vision::kHomographyTestTracks, r.still.threshold_px,
-                    t->first_frame, r.still.noise_px, from_motion.first_frame));
+    for (int k : kept) {
+      from_motion.frames.push_back(t->frames[static_cast<size_t>(k)]);
+      from_motion.frame_numbers.push_back(t->first_frame + k);
+    }
+    if (still > 0)
+      say(fmt::format("still: frames {}-{} are still (fewer than {} tracks more than {:.2f} px from frame {}; tracking noise "
+                      "{:.2f} px); the reference frame is {}",
+                      t->first_frame, t->first_frame + still - 1, vision::kHomographyTestTracks, r.still.threshold_px,
+                      t->first_frame, r.still.noise_px, from_motion.first_frame));
+    if (!r.still.held.empty()) {
+      std::string runs;
+      for (size_t i = 0; i < r.still.held.size();) {
+        size_t j = i;
+        while (j + 1 < r.still.held.size() && r.still.held[j + 1] == r.still.held[j] + 1) ++j;
+        runs += fmt::format("{}{}-{}", runs.empty() ? "" : ", ", t->first_frame + r.still.held[i], t->first_frame + r.still.held[j]);
+        i = j + 1;
+      }
+      say(fmt::format("still: frames {} are still after the motion started (held: they carry the pose of the frame before)",
+                      runs));
+    }
     t = &from_motion;
   }
   const Tracks& tracks = *t;
@@ -199,7 +235,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
                                    cands.empty() ? "none" : cands));
   }
   {
-    std::string line = fmt::format("planes: {} accepted (pair frame {}):", pf.numPlanes(), tracks.first_frame + pf.pair_frame);
+    std::string line = fmt::format("planes: {} accepted (pair frame {}):", pf.numPlanes(), tracks.frameNumber(pf.pair_frame));
     for (const auto& c : pf.candidates)
       line += fmt::format(" [{} {} tracks, motion {:.1f} px{}]", vision::toString(c.verdict), c.members.size(),
                           c.median_motion_px,
@@ -269,15 +305,15 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     }
   }
   if (start_at_grid_end && !(r.refined.ok && r.refined.focal_determined)) say(std::string("warning: ") + kFocalGridEndWarning);
-  if (still > 0) {
-    // The still frames carry the reference frame's pose: every input frame has a record.
-    prependStill(&r.online, still);
+  if (!t->frame_numbers.empty()) {
+    // The still frames carry the pose of the frame before them: every input frame has a record.
+    const int first = input.first_frame;
+    fillStill<Eigen::Matrix<double, 6, 6>>(&r.online, nullptr, kept, first);
     coverIds(&r.planes.labels, input);
+    r.planes.pair_frame = kept[static_cast<size_t>(r.planes.pair_frame)] - still;  // from the reference frame
     if (r.refined.ok) {
-      prependStill(&r.refined.state, still);
-      if (!r.refined.cov_motion.empty())
-        r.refined.cov_motion.insert(r.refined.cov_motion.begin(), still, Eigen::Matrix<double, 6, 6>::Zero());
-      for (int& k : r.refined.undetermined_frames) k += still;
+      fillStill(&r.refined.state, &r.refined.cov_motion, kept, first);
+      for (int& k : r.refined.undetermined_frames) k = kept[static_cast<size_t>(k)];
       coverIds(&r.refined.labels, input);
     }
   }

@@ -252,7 +252,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     std::vector<double> sum2(1, 0.0);
     std::vector<long> cnt(1, 0);
     TrackFrame t0;
-    t0.frame = tracks.first_frame;
+    t0.frame = tracks.frameNumber(0);
     t0.beta = beta0;
     t0.var_beta = P0(idx::kBeta, idx::kBeta);
     t0.observed = t0.used = static_cast<int>(ids.size());
@@ -263,12 +263,12 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
         if (pidx[p.id] >= 0) obs.push_back({pidx[p.id], uvOf(p.px)});
       const FrameStats& fs = f.step(obs);
       if (k >= kMinFramesBeforeEnd && ranOut(fs, PointModel::kMinPoints)) {
-        res.ended = ranOutNote(tracks.first_frame + k, fs.update.blocks, PointModel::kMinPoints);
+        res.ended = ranOutNote(tracks.frameNumber(k), fs.update.blocks, PointModel::kMinPoints);
         break;
       }
-      res.stopped = afterStep(f, fs, tracks.first_frame + k);
+      res.stopped = afterStep(f, fs, tracks.frameNumber(k));
       if (!res.stopped.empty()) break;
-      TrackFrame tf = frameOf(f, fs, tracks.first_frame + k, static_cast<int>(obs.size()), depth_start);
+      TrackFrame tf = frameOf(f, fs, tracks.frameNumber(k), static_cast<int>(obs.size()), depth_start);
       accumulateResiduals(f, obs, fs, std::vector<int>(obs.size(), 0), s, &sum2, &cnt, &tf.rms_px);
       res.frames.push_back(tf);
       if (progress) progress(k + 1, F);
@@ -370,7 +370,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       }
     };
     TrackFrame t0;
-    t0.frame = tracks.first_frame;
+    t0.frame = tracks.frameNumber(0);
     t0.beta = f.beta();
     t0.var_beta = f.ekf().P()(idx::kBeta, idx::kBeta);
     recordPlanes(&t0);
@@ -386,12 +386,12 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
         }
       const FrameStats& fs = f.step(obs);
       if (k >= kMinFramesBeforeEnd && ranOut(fs, PlaneModel::kMinPoints)) {
-        res.ended = ranOutNote(tracks.first_frame + k, fs.update.blocks, PlaneModel::kMinPoints);
+        res.ended = ranOutNote(tracks.frameNumber(k), fs.update.blocks, PlaneModel::kMinPoints);
         break;
       }
-      res.stopped = afterStep(f, fs, tracks.first_frame + k);
+      res.stopped = afterStep(f, fs, tracks.frameNumber(k));
       if (!res.stopped.empty()) break;
-      TrackFrame tf = frameOf(f, fs, tracks.first_frame + k, static_cast<int>(obs.size()), depth_start);
+      TrackFrame tf = frameOf(f, fs, tracks.frameNumber(k), static_cast<int>(obs.size()), depth_start);
       recordPlanes(&tf);
       accumulateResiduals(f, obs, fs, grp, s, &sum2, &cnt, &tf.rms_px);
       res.frames.push_back(tf);

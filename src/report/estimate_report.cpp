@@ -178,7 +178,8 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
     pn["initial_omega_sd_deg"] = on.q0_omega_sd_deg;
     pn["initial_translation_sd_rel"] = on.q0_trans_sd_rel;
     std::vector<double> w, t;
-    for (std::size_t k = static_cast<std::size_t>(on.still_frames) + 1; k < on.frames.size(); ++k) {  // after the reference frame
+    for (std::size_t k = static_cast<std::size_t>(on.still_frames) + 1; k < on.frames.size(); ++k) {
+      if (on.frames[k].still) continue;  // no prediction there
       w.push_back(on.frames[k].q_omega_sd_deg);
       t.push_back(on.frames[k].q_trans_sd_rel);
     }
@@ -316,15 +317,16 @@ std::string planeRows(const TrackFrame& f, double scale_px, const char* estimate
   // the refined row).
   const bool has_q = std::string_view(estimate) == "online" && f.q_omega_sd_deg > 0.0;
   const std::string qw = has_q ? num(f.q_omega_sd_deg, 4) : "NA", qt = has_q ? num(f.q_trans_sd_rel, 4) : "NA";
+  const std::string rms = f.still ? std::string("NA") : num(f.rms_px, 4);  // a still frame: no observations
   if (f.N.empty())
     return fmt::format("{},-1,NA,NA,NA,NA,NA,NA,{},{},{},{},{},{},{},{},{},{}\n", f.frame, num(f.beta), num(bsd),
-                       num(focal, 3), num(fsd, 3), f.used, f.gated, num(f.rms_px, 4), estimate, qw, qt);
+                       num(focal, 3), num(fsd, 3), f.used, f.gated, rms, estimate, qw, qt);
   std::string out;
   for (size_t p = 0; p < f.N.size(); ++p) {
     const MetricPlane mp = metricPlane(f.N[p], f.beta, covBetaN(f, static_cast<int>(p)));
     out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, p, num(mp.n.x()), num(mp.n.y()),
                        num(mp.n.z()), num(mp.sd_angle_deg, 4), num(mp.d), num(mp.sd_d), num(f.beta), num(bsd),
-                       num(focal, 3), num(fsd, 3), f.used, f.gated, num(f.rms_px, 4), estimate, qw, qt);
+                       num(focal, 3), num(fsd, 3), f.used, f.gated, rms, estimate, qw, qt);
   }
   return out;
 }

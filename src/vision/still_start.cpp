@@ -80,44 +80,46 @@ StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks)
     }
   }
   s.threshold_px = std::max(still_px, 4.0 * s.noise_px);
-  // Each frame is compared with the frame-0 tracks' mean positions over the still frames so far:
-  // against frame 0 alone, a track whose frame-0 position is off by its noise would stay near the
+  // A still run: its first frame's tracks and their mean positions over the run so far. Against
+  // its first frame alone, a track whose position there is off by its noise would stay near the
   // threshold and get a new chance to pass it in every frame.
-  const std::vector<TrackPoint>& f0 = tracks.frames[0];
-  std::vector<Eigen::Vector2d> sum(f0.size(), Eigen::Vector2d::Zero());
-  std::vector<int> count(f0.size(), 0);
-  std::vector<int> index;  // into f0, per pair
-  for (size_t i = 0; i < f0.size(); ++i) {
-    sum[i] = f0[i].px;
-    count[i] = 1;
-  }
-  for (int k = 1; k < F; ++k) {
+  struct Run {
+    std::vector<TrackPoint> at;  // the run's first frame (sorted by id)
+    std::vector<Eigen::Vector2d> sum;
+    std::vector<int> count;
+    void reset(const std::vector<TrackPoint>& f) {
+      at = f;
+      sum.resize(f.size());
+      count.assign(f.size(), 1);
+      for (size_t i = 0; i < f.size(); ++i) sum[i] = f[i].px;
+    }
+  } run;
+  std::vector<int> index;  // into run.at, per pair
+  // Whether frame k moved from the run; adds it to the run when not. n < 8: cannot tell (-1).
+  auto test = [&](int k, int* moving) {
     a.clear();
     b.clear();
     index.clear();
-    {
-      size_t i = 0;
-      for (const TrackPoint& q : tracks.frames[k]) {
-        while (i < f0.size() && f0[i].id < q.id) ++i;
-        if (i == f0.size()) break;
-        if (f0[i].id != q.id) continue;
-        const Eigen::Vector2d m = sum[i] / count[i];
-        a.emplace_back(m.x(), m.y());
-        b.emplace_back(q.px.x(), q.px.y());
-        index.push_back(static_cast<int>(i));
-      }
+    size_t i = 0;
+    for (const TrackPoint& q : tracks.frames[k]) {
+      while (i < run.at.size() && run.at[i].id < q.id) ++i;
+      if (i == run.at.size()) break;
+      if (run.at[i].id != q.id) continue;
+      const Eigen::Vector2d m = run.sum[i] / run.count[i];
+      a.emplace_back(m.x(), m.y());
+      b.emplace_back(q.px.x(), q.px.y());
+      index.push_back(static_cast<int>(i));
     }
     const int n = static_cast<int>(a.size());
-    if (n < 8) continue;  // too few tracks to tell; the next frame may have more
+    if (n < 8) return -1;
     // The dominant motion: a homography, robust to the tracks of a smaller moving object.
     const cv::Mat H = cv::findHomography(a, b, cv::RANSAC, std::max(1.0, 3.0 * s.noise_px), cv::noArray(), 2000, 0.999);
     const cv::Matx33d h = H.empty() ? cv::Matx33d::eye() : cv::Matx33d(H);
     r.clear();
     int moved = 0;
-    for (int i = 0; i < n; ++i) {
-      const cv::Point2d m = apply(h, a[i]);
-      r.push_back(cv::norm(m - a[i]));
-      moved += cv::norm(b[i] - a[i]) > s.threshold_px;
+    for (int j = 0; j < n; ++j) {
+      r.push_back(cv::norm(apply(h, a[j]) - a[j]));
+      moved += cv::norm(b[j] - a[j]) > s.threshold_px;
     }
     // (a) The dominant surface moved (a camera, or an object filling most of the view): its
     // homography's median displacement above still_px and above its own fit's noise, per axis
@@ -129,16 +131,40 @@ StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks)
     // motion within its noise, the identity is that motion; the homography itself is not the
     // reference: it bends towards a corner's moving tracks while they are its inliers.
     if (dominant || moved >= min_tracks) {
-      s.moves = true;
-      s.moving_tracks = dominant ? n : moved;
-      s.still_frames = k - 1;
-      return s;
+      *moving = dominant ? n : moved;
+      return 1;
     }
-    for (int i = 0; i < n; ++i) {
-      sum[index[i]] += Eigen::Vector2d(b[i].x, b[i].y);
-      ++count[index[i]];
+    for (int j = 0; j < n; ++j) {
+      run.sum[index[j]] += Eigen::Vector2d(b[j].x, b[j].y);
+      ++run.count[index[j]];
     }
+    return 0;
+  };
+  run.reset(tracks.frames[0]);
+  int k = 1, moving = 0;
+  while (k < F && test(k, &moving) != 1) ++k;
+  if (k == F) return s;  // nothing moves
+  s.moves = true;
+  s.moving_tracks = moving;
+  s.still_frames = k - 1;
+  // Later still stretches: runs of at least kMinHeldFrames frames that did not move from the
+  // frame before them.
+  run.reset(tracks.frames[k]);
+  std::vector<int> stretch;
+  auto close = [&] {
+    if (static_cast<int>(stretch.size()) >= kMinHeldFrames) s.held.insert(s.held.end(), stretch.begin(), stretch.end());
+    stretch.clear();
+  };
+  for (++k; k < F; ++k) {
+    const int moved = test(k, &moving);
+    if (moved == 0) {
+      stretch.push_back(k);
+      continue;
+    }
+    close();
+    run.reset(tracks.frames[k]);
   }
+  close();
   return s;
 }
 

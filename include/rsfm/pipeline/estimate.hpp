@@ -49,7 +49,9 @@ struct EstimateOptions {
   /// The still start (issue 14 item 1, vision/still_start.hpp, docs/estimate.md section 0):
   /// until a plane's worth of tracks (kHomographyTestTracks) are more than max(still_px, 4 x the
   /// measured tracking noise) from where they were in the first frame, frames are still; the
-  /// reference frame is the last still one and the frames before it carry its pose. 0.25 px is
+  /// reference frame is the last still one and the frames before it carry its pose. Later
+  /// stretches of at least vision::kMinHeldFrames still frames are left out of every stage and
+  /// carry the pose of the frame before them. 0.25 px is
   /// PatchPipelineOptions::still_px's value: a tripod's KLT tracks jitter by ~0.01 px (the ViSP
   /// cube's 17 still frames), its first moving frame moved 0.3 px. <= 0: the first frame is the
   /// reference.
@@ -57,11 +59,12 @@ struct EstimateOptions {
 };
 
 struct EstimateResult {
-  /// The still start: the stages below ran on the tracks from frame still.still_frames (the
-  /// reference frame, an index into the input's frames) on; the still frames before it were
-  /// prepended to `online` and `refined` as copies of the reference frame's record
-  /// (TrackFilterResult::still_frames), so both cover every input frame. Labels cover every input
-  /// id (a track that ended before the reference frame: -2).
+  /// The still frames: the stages below ran on the tracks from frame still.still_frames (the
+  /// reference frame, an index into the input's frames) on, without the later still frames
+  /// (still.held); both kinds were put back into `online` and `refined` as copies of the record
+  /// of the frame before them (TrackFrame::still; before the reference frame, the reference's),
+  /// so both cover every input frame. Labels cover every input id (a track that ended before the
+  /// reference frame: -2).
   vision::StillStart still;
   vision::PlaneFinding planes;      ///< label per track, every candidate plane, the pair frame (an index from the reference frame)
   vision::PlaneStart start;         ///< the homography start (ok = false: not tried, or refused: note says why)

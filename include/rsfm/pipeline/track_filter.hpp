@@ -119,13 +119,17 @@ struct TrackFrame {
   /// each omega component's sd (deg per frame) and the translation's sd (t_X; relative to the
   /// main plane's starting depth, depth0 / beta0, per frame).
   double q_omega_sd_deg = 0.0, q_trans_sd_rel = 0.0;
+  /// A still frame (EstimateOptions::still_px): no filter step; a copy of the record of the
+  /// frame before it (of the reference frame's before the reference frame) with its own frame
+  /// number and no observations.
+  bool still = false;
 };
 
 struct TrackFilterResult {
   std::vector<TrackFrame> frames;   ///< frames[still_frames] is the reference frame (prior)
   /// Still frames before the reference frame (EstimateOptions::still_px): copies of the reference
   /// frame's record with their own frame numbers - the reference pose (R = I, t = 0), its
-  /// structure, no observations. 0 from runTrackFilter itself.
+  /// structure, no observations (TrackFrame::still). 0 from runTrackFilter itself.
   int still_frames = 0;
   double scale_px = 0.0;
   int planes = 0;

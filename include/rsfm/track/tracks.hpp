@@ -42,8 +42,13 @@ struct Tracks {
   int first_frame = 0;
   std::vector<std::vector<TrackPoint>> frames;
   std::string source;  ///< what was tracked (informative)
+  /// Empty: frames[k] is frame first_frame + k. Otherwise frames[k] is frame frame_numbers[k]
+  /// (increasing): a sequence with frames left out (rsfm::estimate()'s still frames).
+  std::vector<int> frame_numbers;
 
   int numFrames() const { return static_cast<int>(frames.size()); }
+  /// The frame number of frames[k].
+  int frameNumber(int k) const { return frame_numbers.empty() ? first_frame + k : frame_numbers[static_cast<size_t>(k)]; }
   /// 1 + the largest track id (0 when empty).
   int idBound() const;
   /// Position of track `id` in frame index k (0-based within `frames`), or nullptr.

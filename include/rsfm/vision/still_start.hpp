@@ -25,7 +25,18 @@ struct StillStart {
   int moving_tracks = 0;
   /// false: no frame moves.
   bool moves = false;
+  /// Later still frames (indices into the tracks' frames, increasing): each belongs to a stretch
+  /// of at least kMinHeldFrames frames in which nothing moved from the frame before the stretch
+  /// (the same tests as the start's, against that frame's tracks), and shows that frame's scene
+  /// from that frame's camera. A still camera's frames repeat its tracker's errors: they add no
+  /// information, and an estimator that takes them as new observations grows sure of nothing.
+  std::vector<int> held;
 };
+
+/// Shortest later still stretch that is held (a third of a second at 30 fps): a slow motion
+/// leaves a few frames still against the frame before them (0.6 px of dominant motion at
+/// 0.1-0.2 px per frame: 3-6 frames), then moves on; those stay in.
+inline constexpr int kMinHeldFrames = 10;
 
 /// The still start of `tracks`. Frame k (k = 1, 2, ...) moves the scene when, over the tracks
 /// alive in frames 0 and k,
@@ -40,7 +51,11 @@ struct StillStart {
 /// A track's still position is its mean over the still frames so far (frame 0 alone would give a
 /// track whose frame-0 position is off by its noise a new chance to pass the threshold in every
 /// frame).
-/// still_frames = k - 1 for the first such k. `still_px` <= 0 turns the test off (still_frames
+/// still_frames = k - 1 for the first such k. After it, the same tests against the last frame
+/// that moved find the later still stretches (`held`). The tests' limit: an object before a
+/// still background that moves less than threshold_px in kMinHeldFrames frames is taken as
+/// still there (negligible with a tracker's usual noise, 0.25 px; at 0.5 px of noise per
+/// observation the threshold is 2.5 px). `still_px` <= 0 turns the test off (still_frames
 /// 0, moves true). Throws std::invalid_argument when still_px is NaN or min_tracks < 1.
 StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks);
 
