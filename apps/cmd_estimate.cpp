@@ -139,8 +139,9 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--passes", f.passes, "passes over the sequence (>1: restart from the previous pass's planes and focal)")
       ->capture_default_str();
   a->add_option_function<double>("--still-px", [e](double v) { e->est.still_px = e->pat.patch.still_px = v; },
-                                 "still start: frames before the motion exceeds this (px) are still, the reference frame is "
-                                 "the last of them (plane models: a plane's worth of tracks, patches: the median; <= 0: off)")
+                                 "still frames: motion below this (px) is still; the reference frame is the last still frame "
+                                 "of the start, later stretches of 10 still frames are held (plane models: the tracks' "
+                                 "homography or a plane's worth of tracks; patches: the median, start only; <= 0: off)")
       ->default_str(fmt::format("{}", e->est.still_px));
   a->add_option("--max-planes", e->est.finder.max_planes, "planes kept at most")->capture_default_str();
   a->add_option("--min-plane-tracks", e->est.finder.min_plane_tracks, "reference tracks a plane needs")
@@ -351,7 +352,7 @@ nlohmann::json heldFrames(const Tracks& tracks, const vision::StillStart& s) {
   for (size_t i = 0; i < s.held.size();) {
     size_t j = i;
     while (j + 1 < s.held.size() && s.held[j + 1] == s.held[j] + 1) ++j;
-    runs.push_back({tracks.first_frame + s.held[i], tracks.first_frame + s.held[j]});
+    runs.push_back({tracks.frameNumber(s.held[i]), tracks.frameNumber(s.held[j])});
     i = j + 1;
   }
   return runs;
@@ -377,7 +378,7 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
     cands.push_back({{"verdict", vision::toString(c.verdict)}, {"label", c.label}, {"tracks", c.members.size()},
                      {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction}});
   if (!r.start.hypotheses.empty()) rep.extra["start"] = startJson(r.start);
-  const int reference = tracks.first_frame + r.still.still_frames;
+  const int reference = tracks.frameNumber(r.still.still_frames);
   rep.extra["still_start"] = {{"reference_frame", reference},
                               {"still_frames", r.still.still_frames},
                               {"threshold_px", r.still.threshold_px},

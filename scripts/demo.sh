@@ -48,7 +48,7 @@ if [ -d "$CUBE" ]; then
   /usr/bin/python3 - "$OUT/cube-run/summary.json" "$OUT/cube-run/planes.csv" <<'PY'
 import csv, json, sys
 s = json.load(open(sys.argv[1]))
-worst = max(float(r["rms_px"]) for r in csv.DictReader(open(sys.argv[2])))
+worst = max(float(r["rms_px"]) for r in csv.DictReader(open(sys.argv[2])) if r["rms_px"] != "NA")  # NA: a still frame
 print(f"   poster plane: {s['tracks']['on_planes']} tracks ({s['plane_tracks'][0]} in the filter), outliers (cube, others) {s['tracks']['outliers']}, "
       f"reprojection RMS {s['plane_reprojection_rms_px'][0]:.2f} px overall, {worst:.2f} px worst frame")
 PY

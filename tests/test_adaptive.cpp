@@ -322,8 +322,15 @@ TEST(Adaptive, TheReferenceFrameIsWhereTheSceneStartsToMoveAndLaterStillFramesAr
     for (int k = 0; k <= s.still_frames; ++k)
       EXPECT_TRUE(whole.main().frames[k].R.isIdentity(0.0) && whole.main().frames[k].t.isZero(0.0)) << "frame " << k;
     EXPECT_EQ(whole.refined.cov_motion.size(), whole.main().frames.size());
-    // Every input id has a label.
+    // Every input id has a label; a track seen only in still frames that were left out is -2.
     EXPECT_EQ(static_cast<int>(whole.labels().size()), rt.tracks.idBound());
+    {
+      std::vector<char> seen(static_cast<size_t>(rt.tracks.idBound()), 0);
+      for (int k : kept)
+        for (const TrackPoint& p : rt.tracks.frames[k]) seen[p.id] = 1;
+      for (int id = 0; id < rt.tracks.idBound(); ++id)
+        if (!seen[id]) EXPECT_EQ(whole.labels()[id], -2) << "track " << id;
+    }
     const TrackFilterResult& w = whole.main();
     const double f = w.scale_px / w.frames.back().beta;
     ASSERT_TRUE(rt.truth.focal_px.has_value());
@@ -384,6 +391,10 @@ TEST(Adaptive, TheStillTestIsTheTrackingNoisesAndAFewJumpingTracksDoNotMoveTheSc
       EXPECT_GE(s.still_frames, 39);
       EXPECT_LE(s.still_frames, 56);
     }
+    // A frame without tracks in the still start cannot be tested: it is not taken as still.
+    Tracks gap = t;
+    gap.frames[s.still_frames].clear();
+    EXPECT_EQ(vision::findStillStart(gap, 0.25, vision::kHomographyTestTracks).still_frames, s.still_frames - 1);
     Tracks noise_only = t;
     noise_only.frames.resize(40);
     EXPECT_FALSE(vision::findStillStart(noise_only, 0.25, vision::kHomographyTestTracks).moves)

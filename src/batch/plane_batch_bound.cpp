@@ -285,19 +285,88 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     }
     int tracks = 0;
     for (int t = 0; t < P; ++t) tracks += !g.col(t).isZero(0.0);
-    if (tracks > 1) {
-      const Eigen::MatrixXd V = g * g.transpose() * (static_cast<double>(tracks) / (tracks - 1));
-      Eigen::VectorXd f = Eigen::VectorXd::Ones(q), ratio = Eigen::VectorXd::Zero(q);
-      for (int a = 0; a < q; ++a) {
-        const double c0 = out.cov(glob[a], glob[a]);
-        if (c0 > 0 && std::isfinite(V(a, a))) {
-          ratio[a] = V(a, a) / c0;
-          f[a] = std::sqrt(std::max(1.0, ratio[a]));
-        }
+    // The spatial clusters' scores (spatial_grid): the tracks' scores summed per cell.
+    Eigen::MatrixXd gs;
+    int cells = 0;
+    if (opt.spatial_grid > 0) {
+      const int G = opt.spatial_grid;
+      std::vector<Eigen::Vector2d> lo(m, Eigen::Vector2d::Constant(1e300)), hi(m, Eigen::Vector2d::Constant(-1e300));
+      for (int t = 0; t < P && t < static_cast<int>(at.ref.size()); ++t) {
+        const int j = data.labels[t];
+        if (j < 0 || j >= m || g.col(t).isZero(0.0)) continue;
+        lo[j] = lo[j].cwiseMin(at.ref[t]);
+        hi[j] = hi[j].cwiseMax(at.ref[t]);
       }
+      gs = Eigen::MatrixXd::Zero(q, m * G * G);
+      for (int t = 0; t < P && t < static_cast<int>(at.ref.size()); ++t) {
+        const int j = data.labels[t];
+        if (j < 0 || j >= m || g.col(t).isZero(0.0)) continue;
+        const Eigen::Vector2d span = (hi[j] - lo[j]).cwiseMax(1e-12);
+        const int ix = std::clamp(static_cast<int>(G * (at.ref[t].x() - lo[j].x()) / span.x()), 0, G - 1);
+        const int iy = std::clamp(static_cast<int>(G * (at.ref[t].y() - lo[j].y()) / span.y()), 0, G - 1);
+        gs.col((j * G + iy) * G + ix) += g.col(t);
+      }
+      for (int c = 0; c < gs.cols(); ++c) cells += !gs.col(c).isZero(0.0);
+    }
+    if (tracks > 1) {
+      Eigen::VectorXd c0(q);
+      for (int a = 0; a < q; ++a) c0[a] = out.cov(glob[a], glob[a]);
+      // Widens the bound of the globals `sel` to cover the sandwich V in every direction, never
+      // narrowing any: C' = C^1/2 max(I, C^-1/2 V C^-1/2) C^1/2 on C's range (the generalized
+      // eigenvalues of (V, C) clamped at 1 from below), so C' >= C and C' >= V in the Loewner
+      // order and every functional's variance, a frame's motion's through the back-substitution
+      // included, is at least the bound's and the sandwich's. Invariant to the parameters' units
+      // (computed on the correlation matrix).
+      auto widen = [&](const Eigen::MatrixXd& V, const std::vector<int>& sel) {
+        const int r = static_cast<int>(sel.size());
+        Eigen::MatrixXd C(r, r), Vr(r, r);
+        Eigen::VectorXd d(r);
+        for (int a = 0; a < r; ++a) d[a] = std::sqrt(std::max(out.cov(glob[sel[a]], glob[sel[a]]), 0.0));
+        for (int a = 0; a < r; ++a)
+          for (int e = 0; e < r; ++e) {
+            const double n = d[a] > 0 && d[e] > 0 ? d[a] * d[e] : 0.0;
+            C(a, e) = n > 0 ? out.cov(glob[sel[a]], glob[sel[e]]) / n : 0.0;
+            Vr(a, e) = n > 0 && std::isfinite(V(sel[a], sel[e])) ? V(sel[a], sel[e]) / n : 0.0;
+          }
+        const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> ec(C);
+        if (ec.info() != Eigen::Success) return;
+        const double tol = 1e-10 * std::max(1.0, ec.eigenvalues().maxCoeff());
+        std::vector<int> keep;
+        for (int a = 0; a < r; ++a)
+          if (ec.eigenvalues()[a] > tol) keep.push_back(a);
+        const int k = static_cast<int>(keep.size());
+        if (k == 0) return;
+        Eigen::MatrixXd S(r, k), W(r, k);  // C^1/2 and C^-1/2 on the range
+        for (int i = 0; i < k; ++i) {
+          const double l = ec.eigenvalues()[keep[i]];
+          S.col(i) = ec.eigenvectors().col(keep[i]) * std::sqrt(l);
+          W.col(i) = ec.eigenvectors().col(keep[i]) / std::sqrt(l);
+        }
+        const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> em(W.transpose() * Vr * W);
+        if (em.info() != Eigen::Success) return;
+        const Eigen::VectorXd lift = (em.eigenvalues().array() - 1.0).cwiseMax(0.0);
+        const Eigen::MatrixXd D = S * em.eigenvectors() * lift.asDiagonal() * em.eigenvectors().transpose() * S.transpose();
+        for (int a = 0; a < r; ++a)
+          for (int e = 0; e < r; ++e) out.cov(glob[sel[a]], glob[sel[e]]) += D(a, e) * d[a] * d[e];
+      };
+      std::vector<int> all(q), no_camera;
       for (int a = 0; a < q; ++a) {
-        out.cov.row(glob[a]) *= f[a];
-        out.cov.col(glob[a]) *= f[a];
+        all[a] = a;
+        if (std::find(iC.begin(), iC.end(), glob[a]) == iC.end()) no_camera.push_back(a);
+      }
+      const Eigen::MatrixXd V = g * g.transpose() * (static_cast<double>(tracks) / (tracks - 1));
+      widen(V, all);
+      // The spatial clusters widen beta and the planes only: the camera's bound decides whether
+      // the principal point and the distortion are held (RefineResult), and a region's shared
+      // error is what a free camera absorbs.
+      if (cells > 1 && !no_camera.empty()) widen(gs * gs.transpose() * (static_cast<double>(cells) / (cells - 1)), no_camera);
+      Eigen::VectorXd f = Eigen::VectorXd::Ones(q), ratio = Eigen::VectorXd::Zero(q);
+      for (int a = 0; a < q; ++a)
+        if (c0[a] > 0) {
+          ratio[a] = std::isfinite(V(a, a)) ? V(a, a) / c0[a] : 0.0;
+          f[a] = std::sqrt(std::max(1.0, out.cov(glob[a], glob[a]) / c0[a]));
+        }
+      for (int a = 0; a < q; ++a) {
         if (glob[a] == iBeta) {
           out.clustered_beta = f[a];
           out.clustered_beta_ratio = ratio[a];

@@ -19,13 +19,12 @@ std::string rf_message(const EstimateResult& er) {
   return er.refined.message.empty() ? std::string("no message") : er.refined.message.substr(0, er.refined.message.find(';'));
 }
 
-/// Puts the still frames back into a run on the frames `kept` (indices into the input, whose
-/// first frame is `first_frame`): every input frame from the first up to the run's last gets a
+/// Puts the still frames back into a run on the frames `kept` (indices into `input`): every input frame from the first up to the run's last gets a
 /// record, a left-out one a copy of the record of the kept frame before it (the reference's
 /// before the reference frame) with its own frame number, no observations and `still` set.
 /// `cov` (per kept frame, may be empty) is filled the same way, zero before the reference.
 template <typename Cov>
-void fillStill(TrackFilterResult* r, std::vector<Cov>* cov, const std::vector<int>& kept, int first_frame) {
+void fillStill(TrackFilterResult* r, std::vector<Cov>* cov, const std::vector<int>& kept, const Tracks& input) {
   if (r->frames.empty()) return;
   const int last = kept[r->frames.size() - 1];
   std::vector<TrackFrame> frames;
@@ -37,7 +36,7 @@ void fillStill(TrackFilterResult* r, std::vector<Cov>* cov, const std::vector<in
     const bool is_kept = kept[i] == k;
     TrackFrame f = r->frames[i];
     if (!is_kept) {
-      f.frame = first_frame + k;
+      f.frame = input.frameNumber(k);
       f.observed = f.used = f.gated = 0;
       f.nis_per_dof = f.rms_px = 0.0;
       f.q_scale = 1.0;
@@ -52,10 +51,17 @@ void fillStill(TrackFilterResult* r, std::vector<Cov>* cov, const std::vector<in
   if (cov && !cov->empty()) *cov = std::move(covs);
 }
 
-/// Labels sized for every id of `input` (tracks that lived only before the reference frame: -2).
-void coverIds(std::vector<int>* labels, const Tracks& input) {
+/// Labels sized for every id of `input`; a track with no observation in `used` (the frames the
+/// stages ran on: it lived only before the reference frame or within held frames) is -2.
+void coverIds(std::vector<int>* labels, const Tracks& input, const Tracks& used) {
   const std::size_t n = static_cast<std::size_t>(input.idBound());
   if (labels->size() < n) labels->resize(n, -2);
+  std::vector<char> seen(n, 0);
+  for (const auto& f : used.frames)
+    for (const TrackPoint& p : f)
+      if (static_cast<std::size_t>(p.id) < n) seen[static_cast<std::size_t>(p.id)] = 1;
+  for (std::size_t id = 0; id < n; ++id)
+    if (!seen[id]) (*labels)[id] = -2;
 }
 }  // namespace
 
@@ -169,22 +175,22 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   if (static_cast<int>(kept.size()) < t->numFrames()) {
     from_motion.image = t->image;
     from_motion.source = t->source;
-    from_motion.first_frame = t->first_frame + still;
+    from_motion.first_frame = t->frameNumber(still);
     for (int k : kept) {
       from_motion.frames.push_back(t->frames[static_cast<size_t>(k)]);
-      from_motion.frame_numbers.push_back(t->first_frame + k);
+      from_motion.frame_numbers.push_back(t->frameNumber(k));
     }
     if (still > 0)
       say(fmt::format("still: frames {}-{} are still (fewer than {} tracks more than {:.2f} px from frame {}; tracking noise "
                       "{:.2f} px); the reference frame is {}",
-                      t->first_frame, t->first_frame + still - 1, vision::kHomographyTestTracks, r.still.threshold_px,
-                      t->first_frame, r.still.noise_px, from_motion.first_frame));
+                      t->frameNumber(0), t->frameNumber(still - 1), vision::kHomographyTestTracks, r.still.threshold_px,
+                      t->frameNumber(0), r.still.noise_px, from_motion.first_frame));
     if (!r.still.held.empty()) {
       std::string runs;
       for (size_t i = 0; i < r.still.held.size();) {
         size_t j = i;
         while (j + 1 < r.still.held.size() && r.still.held[j + 1] == r.still.held[j] + 1) ++j;
-        runs += fmt::format("{}{}-{}", runs.empty() ? "" : ", ", t->first_frame + r.still.held[i], t->first_frame + r.still.held[j]);
+        runs += fmt::format("{}{}-{}", runs.empty() ? "" : ", ", t->frameNumber(r.still.held[i]), t->frameNumber(r.still.held[j]));
         i = j + 1;
       }
       say(fmt::format("still: frames {} are still after the motion started (held: they carry the pose of the frame before)",
@@ -292,6 +298,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     if (static_cast<int>(r.online.frames.size()) < tracks.numFrames()) {
       covered = tracks;
       covered.frames.resize(r.online.frames.size());
+      if (!covered.frame_numbers.empty()) covered.frame_numbers.resize(r.online.frames.size());
       rt = &covered;
     }
     r.refined = refine(*rt, pf.labels, r.online, fopt, known.refine);
@@ -305,16 +312,15 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     }
   }
   if (start_at_grid_end && !(r.refined.ok && r.refined.focal_determined)) say(std::string("warning: ") + kFocalGridEndWarning);
-  if (!t->frame_numbers.empty()) {
+  if (t == &from_motion) {
     // The still frames carry the pose of the frame before them: every input frame has a record.
-    const int first = input.first_frame;
-    fillStill<Eigen::Matrix<double, 6, 6>>(&r.online, nullptr, kept, first);
-    coverIds(&r.planes.labels, input);
+    fillStill<Eigen::Matrix<double, 6, 6>>(&r.online, nullptr, kept, input);
+    coverIds(&r.planes.labels, input, from_motion);
     r.planes.pair_frame = kept[static_cast<size_t>(r.planes.pair_frame)] - still;  // from the reference frame
     if (r.refined.ok) {
-      fillStill(&r.refined.state, &r.refined.cov_motion, kept, first);
+      fillStill(&r.refined.state, &r.refined.cov_motion, kept, input);
       for (int& k : r.refined.undetermined_frames) k = kept[static_cast<size_t>(k)];
-      coverIds(&r.refined.labels, input);
+      coverIds(&r.refined.labels, input, from_motion);
     }
   }
   return r;

@@ -266,6 +266,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     bopt.skip_undetermined_frames = true;
     bopt.hold_beta = known_focal;
     bopt.track_clustered = ro.track_clustered_sd;
+    bopt.spatial_grid = ro.spatial_grid;
     return planeBatchBound(p.data, st, bopt);
   };
   // Stage 2: the camera released from there. A camera no camera could be (the principal point

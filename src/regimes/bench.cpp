@@ -189,6 +189,11 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
   }
   row.focal_est = s.contains("focal_px") && s["focal_px"].is_number() ? optNum(s, "focal_px") : optNum(s, "focal_estimate_px");
   row.focal_sd = optNum(s, "focal_sd_px");
+  if (s.contains("focal_interval_px") && s["focal_interval_px"].is_array() && s["focal_interval_px"].size() == 2) {
+    const json& iv = s["focal_interval_px"];
+    row.focal_interval_lo = iv[0].is_number() ? std::optional<double>(iv[0].get<double>()) : std::nullopt;
+    row.focal_interval_hi = iv[1].is_number() ? std::optional<double>(iv[1].get<double>()) : std::nullopt;
+  }
   if (s.contains("radial_distortion") && s["radial_distortion"].is_array()) row.k1_est = s["radial_distortion"][0].get<double>();
   if (s.contains("planes") && s["planes"].is_array()) row.planes_found = static_cast<int>(s["planes"].size());
   {
@@ -752,7 +757,10 @@ std::string scoreboardMarkdown(const BenchResult& res, const std::string& invoca
       const auto [lo, hi] = std::minmax_element(focal.begin(), focal.end());
       int consistent = 0;
       for (const Row* r : box)
-        if (r->focal_est && r->focal_sd && std::abs(*r->focal_est - m) <= kFocal95 * *r->focal_sd) ++consistent;
+        if (r->focal_sd ? r->focal_est && std::abs(*r->focal_est - m) <= kFocal95 * *r->focal_sd
+                        : (r->focal_interval_lo || r->focal_interval_hi) && m >= r->focal_interval_lo.value_or(-INFINITY) &&
+                              m <= r->focal_interval_hi.value_or(INFINITY))
+          ++consistent;  // a window whose focal length is not determined: the interval it supports
       s += fmt::format("\nTwo faces found in {}/{} windows. Focal length: median {:.1f} px, spread (max - min) {:.1f} px = "
                        "{:.1f} % of the median; the median lies inside {}/{} windows' own 95 % intervals.",
                        two, box.size(), m, *hi - *lo, 100 * (*hi - *lo) / m, consistent, box.size());

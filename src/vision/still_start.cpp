@@ -141,12 +141,16 @@ StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks)
     return 0;
   };
   run.reset(tracks.frames[0]);
-  int k = 1, moving = 0;
-  while (k < F && test(k, &moving) != 1) ++k;
+  int k = 1, moving = 0, last_still = 0;
+  for (; k < F; ++k) {
+    const int moved = test(k, &moving);
+    if (moved == 1) break;
+    if (moved == 0) last_still = k;  // a frame that cannot be tested (-1) is not known to be still
+  }
   if (k == F) return s;  // nothing moves
   s.moves = true;
   s.moving_tracks = moving;
-  s.still_frames = k - 1;
+  s.still_frames = last_still;
   // Later still stretches: runs of at least kMinHeldFrames frames that did not move from the
   // frame before them.
   run.reset(tracks.frames[k]);

@@ -149,11 +149,19 @@ struct PlaneBatchBoundOptions {
   /// observations of J~^T r (J~ the observation's Jacobian with the frame's motion eliminated,
   /// r the whitened residual at `at`, which must be the optimum). It holds whatever the errors'
   /// correlation along a track (a tracker's drift) and their spread, since each track's errors
-  /// enter through its own score. Each of those parameters' rows and columns of cov are scaled
-  /// by sqrt(max(1, V_ii / cov_ii)) (never narrowed); the factors are in PlaneBatchBound's
-  /// clustered_* fields. The motions get no factor of their own; their covariances take the
-  /// widened rows through the back-substitution (motion_covariance).
+  /// enter through its own score. Those parameters' block of cov becomes the smallest that
+  /// covers both in every direction: C' = C^1/2 max(I, C^-1/2 V C^-1/2) C^1/2 (the generalized
+  /// eigenvalues of (V, C) clamped at 1 from below, on C's range), so no functional's variance is
+  /// narrowed and each is at least the sandwich's. The sd factors sqrt(C'_ii / C_ii) are in
+  /// PlaneBatchBound's clustered_* fields. The motions' covariances take the widened block
+  /// through the back-substitution (motion_covariance), and are widened with it.
   bool track_clustered = false;
+  /// With track_clustered: also cluster the tracks by where they are - per plane, a
+  /// spatial_grid x spatial_grid grid over its tracks' reference positions - and widen beta's and
+  /// the planes' block (not the camera's) the same way to that sandwich (0: tracks only). Errors
+  /// shared by neighbouring tracks (a radial bias, an unmodelled distortion, a texture's pull on
+  /// the tracker) are independent between regions, not between tracks.
+  int spatial_grid = 0;
 };
 struct PlaneBatchBound {
   bool ok = false;

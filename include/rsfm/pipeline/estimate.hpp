@@ -47,14 +47,14 @@ struct EstimateOptions {
   /// A known principal point (px): the tracks' image's is replaced by it and held.
   std::optional<Eigen::Vector2d> principal_point;
   /// The still start (issue 14 item 1, vision/still_start.hpp, docs/estimate.md section 0):
-  /// until a plane's worth of tracks (kHomographyTestTracks) are more than max(still_px, 4 x the
-  /// measured tracking noise) from where they were in the first frame, frames are still; the
-  /// reference frame is the last still one and the frames before it carry its pose. Later
-  /// stretches of at least vision::kMinHeldFrames still frames are left out of every stage and
-  /// carry the pose of the frame before them. 0.25 px is
-  /// PatchPipelineOptions::still_px's value: a tripod's KLT tracks jitter by ~0.01 px (the ViSP
-  /// cube's 17 still frames), its first moving frame moved 0.3 px. <= 0: the first frame is the
-  /// reference.
+  /// frames are still until the tracks' dominant homography moves them by more than still_px
+  /// (and its fit's noise) or a plane's worth of tracks (kHomographyTestTracks) are more than
+  /// max(still_px, 4 x the measured tracking noise) from their still positions; the reference
+  /// frame is the last still one and the frames before it carry its pose. Later stretches of at
+  /// least vision::kMinHeldFrames still frames are left out of every stage and carry the pose of
+  /// the frame before them. 0.25 px is PatchPipelineOptions::still_px's value: the ViSP cube's
+  /// KLT tracks jitter by 0.02 px over its 16 still frames, its first moving frame moved 0.3 px.
+  /// <= 0: the first frame is the reference and nothing is held.
   double still_px = 0.25;
 };
 

@@ -19,7 +19,8 @@
 // with the noise set to the inlier residuals' actual spread sqrt(sum r^2 / (m - n)), inflated for
 // their correlation along tracks (RefineResult::correlation_inflation), and for beta, the planes
 // and the camera widened where the track-clustered covariance of the tracks' own scores is larger
-// ([W80], [CGM11]; RefineOptions::track_clustered_sd, docs/estimate.md section 4). A quantity is
+// (and for beta and the planes the region-clustered one) ([W80], [CGM11];
+// RefineOptions::track_clustered_sd, spatial_grid, docs/estimate.md section 4). A quantity is
 // determined when it is estimable and its sd is within the limits of rsfm/determinacy.hpp; an
 // undetermined focal length is reported with the interval the data support instead of a number.
 // No I/O, no OpenCV.
@@ -68,6 +69,12 @@ struct RefineOptions {
   /// own scores (the track-clustered sandwich covariance, PlaneBatchBoundOptions::track_clustered)
   /// and widen each where it is larger. false: the inflated bound alone (for comparison).
   bool track_clustered_sd = true;
+  /// With track_clustered_sd: also cluster the tracks by region (per plane, a grid of this many
+  /// cells a side over its tracks' reference positions; PlaneBatchBoundOptions::spatial_grid) and
+  /// widen the focal length's and the planes' bound to that sandwich too (0: tracks only). 3: per
+  /// plane 9 regions, enough clusters for a sandwich of its 3 normal components and the focal
+  /// length, regions large enough to share an error (docs/estimate.md section 4).
+  int spatial_grid = 3;
 };
 
 struct RefineResult {

@@ -42,6 +42,9 @@ struct Row {
   double seconds = 0;       ///< wall time of `rsfm run` (tracking included)
   std::optional<double> truth_check_px;   ///< median |Lucas-Kanade track - truth| on the decoded video
   std::optional<double> focal_true, focal_est, focal_sd;
+  /// A focal length reported not determined: the interval the data support (summary.json's
+  /// focal_interval_px; a side the data do not limit is missing).
+  std::optional<double> focal_interval_lo, focal_interval_hi;
   std::optional<double> focal_err_pct;
   std::optional<bool> focal_in_95;        ///< |f - f_true| <= 1.96 sd
   bool focal_determinable = true;         ///< from the truth (render/determinacy.hpp)

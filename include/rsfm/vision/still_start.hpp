@@ -51,11 +51,15 @@ inline constexpr int kMinHeldFrames = 10;
 /// A track's still position is its mean over the still frames so far (frame 0 alone would give a
 /// track whose frame-0 position is off by its noise a new chance to pass the threshold in every
 /// frame).
-/// still_frames = k - 1 for the first such k. After it, the same tests against the last frame
+/// still_frames = the last frame before the first such k that tested still (a frame with fewer
+/// than 8 tracks shared with the still run cannot be tested, and is not taken as still). After it, the same tests against the last frame
 /// that moved find the later still stretches (`held`). The tests' limit: an object before a
 /// still background that moves less than threshold_px in kMinHeldFrames frames is taken as
 /// still there (negligible with a tracker's usual noise, 0.25 px; at 0.5 px of noise per
-/// observation the threshold is 2.5 px). `still_px` <= 0 turns the test off (still_frames
+/// observation the threshold is 2.5 px), and so is a camera whose dominant motion stays under
+/// the test's 0.25-0.3 px for 10 frames (0.025 px per frame). noise_px comes from the first
+/// pair even when it moves (then an upper bound: the other surfaces' parallax): it widens the
+/// thresholds, never narrows them. `still_px` <= 0 turns the test off (still_frames
 /// 0, moves true). Throws std::invalid_argument when still_px is NaN or min_tracks < 1.
 StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks);
 
