@@ -349,12 +349,7 @@ namespace {
 /// The held frames as input frame numbers, one [first, last] pair per stretch.
 nlohmann::json heldFrames(const Tracks& tracks, const vision::StillStart& s) {
   nlohmann::json runs = nlohmann::json::array();
-  for (size_t i = 0; i < s.held.size();) {
-    size_t j = i;
-    while (j + 1 < s.held.size() && s.held[j + 1] == s.held[j] + 1) ++j;
-    runs.push_back({tracks.frameNumber(s.held[i]), tracks.frameNumber(s.held[j])});
-    i = j + 1;
-  }
+  for (const auto& [first, last] : vision::heldStretches(s)) runs.push_back({tracks.frameNumber(first), tracks.frameNumber(last)});
   return runs;
 }
 }  // namespace

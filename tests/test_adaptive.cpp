@@ -271,7 +271,9 @@ TEST(Adaptive, TheReferenceFrameIsWhereTheSceneStartsToMoveAndLaterStillFramesAr
                 "threshold %.2f px, %d tracks moved\n",
                 name, s.still_frames, still, s.held.size(), middle, s.noise_px, s.threshold_px, s.moving_tracks);
     EXPECT_TRUE(s.moves);
-    if (still > 0) EXPECT_NEAR(s.noise_px, 0.2 * std::sqrt(2.0), 0.05);  // a still pair: noise only
+    if (still > 0) {
+      EXPECT_NEAR(s.noise_px, 0.2 * std::sqrt(2.0), 0.05);  // a still pair: noise only
+    }
     // The first moving frame moves the image by about 1 px on these orbits, well above the
     // dominant motion's 0.25 px: the motion is found where it starts.
     EXPECT_EQ(s.still_frames, still);
@@ -316,7 +318,9 @@ TEST(Adaptive, TheReferenceFrameIsWhereTheSceneStartsToMoveAndLaterStillFramesAr
         // Every frame is the cut run's frame at or before it (its copy when still), to the bit.
         EXPECT_EQ(f.beta, m.frames[i].beta) << "frame " << k;
         EXPECT_TRUE(f.R == m.frames[i].R && f.t == m.frames[i].t) << "frame " << k;
-        if (res == &whole.online) EXPECT_EQ(f.var_beta, m.frames[i].var_beta) << "frame " << k;
+        if (res == &whole.online) {
+          EXPECT_EQ(f.var_beta, m.frames[i].var_beta) << "frame " << k;
+        }
       }
     }
     for (int k = 0; k <= s.still_frames; ++k)
@@ -329,7 +333,9 @@ TEST(Adaptive, TheReferenceFrameIsWhereTheSceneStartsToMoveAndLaterStillFramesAr
       for (int k : kept)
         for (const TrackPoint& p : rt.tracks.frames[k]) seen[p.id] = 1;
       for (int id = 0; id < rt.tracks.idBound(); ++id)
-        if (!seen[id]) EXPECT_EQ(whole.labels()[id], -2) << "track " << id;
+        if (!seen[id]) {
+          EXPECT_EQ(whole.labels()[id], -2) << "track " << id;
+        }
     }
     const TrackFilterResult& w = whole.main();
     const double f = w.scale_px / w.frames.back().beta;

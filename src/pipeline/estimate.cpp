@@ -23,12 +23,12 @@ std::string rf_message(const EstimateResult& er) {
 /// record, a left-out one a copy of the record of the kept frame before it (the reference's
 /// before the reference frame) with its own frame number, no observations and `still` set.
 /// `cov` (per kept frame, may be empty) is filled the same way, zero before the reference.
-template <typename Cov>
-void fillStill(TrackFilterResult* r, std::vector<Cov>* cov, const std::vector<int>& kept, const Tracks& input) {
+using MotionCov = Eigen::Matrix<double, 6, 6>;
+void fillStill(TrackFilterResult* r, std::vector<MotionCov>* cov, const std::vector<int>& kept, const Tracks& input) {
   if (r->frames.empty()) return;
   const int last = kept[r->frames.size() - 1];
   std::vector<TrackFrame> frames;
-  std::vector<Cov> covs;
+  std::vector<MotionCov> covs;
   frames.reserve(static_cast<size_t>(last + 1));
   size_t i = 0;  // the kept frame at or before k
   for (int k = 0; k <= last; ++k) {
@@ -44,7 +44,7 @@ void fillStill(TrackFilterResult* r, std::vector<Cov>* cov, const std::vector<in
       f.still = true;
     }
     frames.push_back(std::move(f));
-    if (cov && !cov->empty()) covs.push_back(k < kept[0] ? Cov::Zero() : (*cov)[i]);
+    if (cov && !cov->empty()) covs.push_back(k < kept[0] ? MotionCov::Zero() : (*cov)[i]);
   }
   r->frames = std::move(frames);
   r->still_frames = kept[0];
@@ -187,12 +187,8 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
                       t->frameNumber(0), r.still.noise_px, from_motion.first_frame));
     if (!r.still.held.empty()) {
       std::string runs;
-      for (size_t i = 0; i < r.still.held.size();) {
-        size_t j = i;
-        while (j + 1 < r.still.held.size() && r.still.held[j + 1] == r.still.held[j] + 1) ++j;
-        runs += fmt::format("{}{}-{}", runs.empty() ? "" : ", ", t->frameNumber(r.still.held[i]), t->frameNumber(r.still.held[j]));
-        i = j + 1;
-      }
+      for (const auto& [first, last] : vision::heldStretches(r.still))
+        runs += fmt::format("{}{}-{}", runs.empty() ? "" : ", ", t->frameNumber(first), t->frameNumber(last));
       say(fmt::format("still: frames {} are still after the motion started (held: they carry the pose of the frame before)",
                       runs));
     }
@@ -314,7 +310,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   if (start_at_grid_end && !(r.refined.ok && r.refined.focal_determined)) say(std::string("warning: ") + kFocalGridEndWarning);
   if (t == &from_motion) {
     // The still frames carry the pose of the frame before them: every input frame has a record.
-    fillStill<Eigen::Matrix<double, 6, 6>>(&r.online, nullptr, kept, input);
+    fillStill(&r.online, nullptr, kept, input);
     coverIds(&r.planes.labels, input, from_motion);
     r.planes.pair_frame = kept[static_cast<size_t>(r.planes.pair_frame)] - still;  // from the reference frame
     if (r.refined.ok) {

@@ -19,28 +19,23 @@ double medianOf(std::vector<double> v) {
 /// The median of a 2-D Gaussian error's norm, per axis sd 1: sqrt(2 ln 2) (Rayleigh).
 const double kRayleighMedian = std::sqrt(2.0 * std::log(2.0));
 
-/// The frame-0 and frame-k positions of the tracks alive in both (frames are sorted by id).
-void pairOf(const Tracks& t, int k, std::vector<cv::Point2d>* a, std::vector<cv::Point2d>* b) {
-  a->clear();
-  b->clear();
-  auto i = t.frames[0].begin();
-  const auto end = t.frames[0].end();
-  for (const TrackPoint& q : t.frames[k]) {
-    while (i != end && i->id < q.id) ++i;
-    if (i == end) break;
-    if (i->id == q.id) {
-      a->emplace_back(i->px.x(), i->px.y());
-      b->emplace_back(q.px.x(), q.px.y());
-    }
-  }
-}
-
 cv::Point2d apply(const cv::Matx33d& h, const cv::Point2d& p) {
   const cv::Vec3d x = h * cv::Vec3d(p.x, p.y, 1.0);
   if (std::abs(x[2]) < 1e-12) return {1e9, 1e9};
   return {x[0] / x[2], x[1] / x[2]};
 }
 }  // namespace
+
+std::vector<std::array<int, 2>> heldStretches(const StillStart& s) {
+  std::vector<std::array<int, 2>> out;
+  for (size_t i = 0; i < s.held.size();) {
+    size_t j = i;
+    while (j + 1 < s.held.size() && s.held[j + 1] == s.held[j] + 1) ++j;
+    out.push_back({s.held[i], s.held[j]});
+    i = j + 1;
+  }
+  return out;
+}
 
 StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks) {
   if (std::isnan(still_px)) throw std::invalid_argument("still_px must be a number (<= 0: no still start)");
@@ -54,8 +49,41 @@ StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks)
   if (F < 2) return s;
   std::vector<cv::Point2d> a, b;
   std::vector<double> r;
+  // A still run: its first frame's tracks and their mean positions over the run so far. Against
+  // its first frame alone, a track whose position there is off by its noise would stay near the
+  // threshold and get a new chance to pass it in every frame.
+  struct Run {
+    std::vector<TrackPoint> at;  // the run's first frame (sorted by id)
+    std::vector<Eigen::Vector2d> sum;
+    std::vector<int> count;
+    void reset(const std::vector<TrackPoint>& f) {
+      at = f;
+      sum.resize(f.size());
+      count.assign(f.size(), 1);
+      for (size_t i = 0; i < f.size(); ++i) sum[i] = f[i].px;
+    }
+  } run;
+  std::vector<int> index;  // into run.at, per pair
+  // The tracks of frame k alive in the run: their mean positions over the run into `a`, frame
+  // k's into `b`, their index in the run into `index` (both frames are sorted by id).
+  auto match = [&](int k) {
+    a.clear();
+    b.clear();
+    index.clear();
+    size_t i = 0;
+    for (const TrackPoint& q : tracks.frames[k]) {
+      while (i < run.at.size() && run.at[i].id < q.id) ++i;
+      if (i == run.at.size()) break;
+      if (run.at[i].id != q.id) continue;
+      const Eigen::Vector2d m = run.sum[i] / run.count[i];
+      a.emplace_back(m.x(), m.y());
+      b.emplace_back(q.px.x(), q.px.y());
+      index.push_back(static_cast<int>(i));
+    }
+  };
   // The noise: the frame 0 -> 1 displacements around their least-median-of-squares homography.
-  pairOf(tracks, 1, &a, &b);
+  run.reset(tracks.frames[0]);
+  match(1);
   // The median of the residuals a least-median fit minimized is biased low (0.62 for 0.71 px on
   // the test's 200 tracks): its inliers (within 3 of those sds) are fitted again by least
   // squares, and the sd is their RMS per axis with the fit's 8 degrees of freedom taken out.
@@ -80,36 +108,9 @@ StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks)
     }
   }
   s.threshold_px = std::max(still_px, 4.0 * s.noise_px);
-  // A still run: its first frame's tracks and their mean positions over the run so far. Against
-  // its first frame alone, a track whose position there is off by its noise would stay near the
-  // threshold and get a new chance to pass it in every frame.
-  struct Run {
-    std::vector<TrackPoint> at;  // the run's first frame (sorted by id)
-    std::vector<Eigen::Vector2d> sum;
-    std::vector<int> count;
-    void reset(const std::vector<TrackPoint>& f) {
-      at = f;
-      sum.resize(f.size());
-      count.assign(f.size(), 1);
-      for (size_t i = 0; i < f.size(); ++i) sum[i] = f[i].px;
-    }
-  } run;
-  std::vector<int> index;  // into run.at, per pair
   // Whether frame k moved from the run; adds it to the run when not. n < 8: cannot tell (-1).
   auto test = [&](int k, int* moving) {
-    a.clear();
-    b.clear();
-    index.clear();
-    size_t i = 0;
-    for (const TrackPoint& q : tracks.frames[k]) {
-      while (i < run.at.size() && run.at[i].id < q.id) ++i;
-      if (i == run.at.size()) break;
-      if (run.at[i].id != q.id) continue;
-      const Eigen::Vector2d m = run.sum[i] / run.count[i];
-      a.emplace_back(m.x(), m.y());
-      b.emplace_back(q.px.x(), q.px.y());
-      index.push_back(static_cast<int>(i));
-    }
+    match(k);
     const int n = static_cast<int>(a.size());
     if (n < 8) return -1;
     // The dominant motion: a homography, robust to the tracks of a smaller moving object.
@@ -140,7 +141,6 @@ StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks)
     }
     return 0;
   };
-  run.reset(tracks.frames[0]);
   int k = 1, moving = 0, last_still = 0;
   for (; k < F; ++k) {
     const int moved = test(k, &moving);

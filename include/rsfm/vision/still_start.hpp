@@ -2,6 +2,9 @@
 // Where the scene starts to move (issue 14 item 1; docs/estimate.md section 0): the frames before
 // are still (the camera and every object where they were in the first frame), and the pipeline
 // takes its reference frame at the last of them.
+#include <array>
+#include <vector>
+
 #include "rsfm/track/tracks.hpp"
 
 namespace rsfm::vision {
@@ -32,6 +35,10 @@ struct StillStart {
   /// information, and an estimator that takes them as new observations grows sure of nothing.
   std::vector<int> held;
 };
+
+/// The held frames as stretches: [first, last] indices into the tracks' frames, one per run of
+/// consecutive held frames.
+std::vector<std::array<int, 2>> heldStretches(const StillStart& s);
 
 /// Shortest later still stretch that is held (a third of a second at 30 fps): a slow motion
 /// leaves a few frames still against the frame before them (0.6 px of dominant motion at
