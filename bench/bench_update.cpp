@@ -169,6 +169,6 @@ void BM_Refine150Frames3Planes(benchmark::State& state) {
   state.counters["tracks"] = r.tracks;
   state.counters["focal_err_pct"] = 100.0 * (online.scale_px / r.state.frames.back().beta / (bo.scale_px / bo.beta) - 1.0);
 }
-BENCHMARK(BM_Refine150Frames3Planes)->Arg(20)->Arg(30)->Arg(60)->Unit(benchmark::kMillisecond)->Iterations(3);
+BENCHMARK(BM_Refine150Frames3Planes)->Arg(20)->Arg(30)->Arg(60)->Arg(150)->Unit(benchmark::kMillisecond)->Iterations(3);
 
 BENCHMARK_MAIN();

@@ -23,7 +23,8 @@ struct RegimeTracks {
 };
 /// `ar_rho` > 0: each track's error drifts as AR(1), e_k = rho e_{k-1} + sqrt(1 - rho^2) g_k (a
 /// tracker's error); 0: independent noise (the same draws as before the option existed).
-inline RegimeTracks regimeTracks(const render::RenderOptions& o, double noise_px, unsigned seed, double ar_rho = 0.0) {
+/// `grid`: points per face side (grid x grid points on each face).
+inline RegimeTracks regimeTracks(const render::RenderOptions& o, double noise_px, unsigned seed, double ar_rho = 0.0, int grid = 12) {
   render::Scene scene(o);
   RegimeTracks out;
   out.truth = scene.truth();
@@ -37,9 +38,10 @@ inline RegimeTracks regimeTracks(const render::RenderOptions& o, double noise_px
   int id = 0;
   for (const auto& f : scene.faces()) {
     if (f.still_body || !f.textured || f.truth_index < 0) continue;
-    for (int i = 0; i < 12; ++i)
-      for (int j = 0; j < 12; ++j) {
-        const Eigen::Vector3d X = f.corners[0] + (i + 0.5) / 12 * (f.corners[1] - f.corners[0]) + (j + 0.5) / 12 * (f.corners[3] - f.corners[0]);
+    for (int i = 0; i < grid; ++i)
+      for (int j = 0; j < grid; ++j) {
+        const Eigen::Vector3d X =
+            f.corners[0] + (i + 0.5) / grid * (f.corners[1] - f.corners[0]) + (j + 0.5) / grid * (f.corners[3] - f.corners[0]);
         bool alive = true, any = false;
         Eigen::Vector2d e(0, 0);
         for (int k = 0; k < o.frames && alive; ++k) {

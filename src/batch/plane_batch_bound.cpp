@@ -204,8 +204,8 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       continue;
     }
     const Eigen::MatrixXd red = Hcc - Hmc.transpose() * ldlt.solve(Hmc);
-    for (int a = 0; a < c; ++a)
-      for (int b = 0; b < c; ++b) S(cols[a], cols[b]) += red(a, b);
+    for (int b = 0; b < c; ++b)  // column by column (both are column-major)
+      for (int a = 0; a < c; ++a) S(cols[a], cols[b]) += red(a, b);
     if (opt.motion_covariance || opt.track_clustered) blocks[k] = {cols, Hmc, ldlt};
   }
   // Null space and pseudo-inverse, on the matrix scaled to unit diagonal (parameters differ in
@@ -222,16 +222,13 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
   }
   const Eigen::VectorXd& lam = es.eigenvalues();
   const double tol = 1e-10 * std::max(1e-300, lam.maxCoeff());
-  Eigen::MatrixXd pinv = Eigen::MatrixXd::Zero(n, n);
-  std::vector<int> null_cols;
-  for (int i = 0; i < n; ++i) {
-    if (lam[i] <= tol) {
-      null_cols.push_back(i);
-    } else {
-      const Eigen::VectorXd v = es.eigenvectors().col(i);
-      pinv.noalias() += v * v.transpose() / lam[i];
-    }
-  }
+  // S+ = U diag(1/lam) U^T over the kept eigenvectors, as one product (Us = U diag(lam^-1/2)).
+  std::vector<int> null_cols, kept;
+  for (int i = 0; i < n; ++i) (lam[i] <= tol ? null_cols : kept).push_back(i);
+  Eigen::MatrixXd Us(n, static_cast<Eigen::Index>(kept.size()));
+  for (size_t j = 0; j < kept.size(); ++j) Us.col(static_cast<Eigen::Index>(j)) = es.eigenvectors().col(kept[j]) / std::sqrt(lam[kept[j]]);
+  Eigen::MatrixXd pinv(n, n);
+  pinv.noalias() = Us * Us.transpose();
   out.null_dim = static_cast<int>(null_cols.size());
   out.null_scaled.resize(n, out.null_dim);
   for (int i = 0; i < out.null_dim; ++i) out.null_scaled.col(i) = es.eigenvectors().col(null_cols[i]);
@@ -420,8 +417,8 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       if (b.cols.empty()) continue;
       const int c = static_cast<int>(b.cols.size());
       Eigen::MatrixXd Cc(c, c);
-      for (int a = 0; a < c; ++a)
-        for (int e = 0; e < c; ++e) Cc(a, e) = cov(b.cols[a], b.cols[e]);
+      for (int e = 0; e < c; ++e)  // column by column (both are column-major)
+        for (int a = 0; a < c; ++a) Cc(a, e) = cov(b.cols[a], b.cols[e]);
       const Eigen::Matrix<double, 6, 6> Hinv = b.ldlt.solve(Eigen::Matrix<double, 6, 6>::Identity());
       const Eigen::MatrixXd G = Hinv * b.Hmc;  // 6 x c
       out.cov_motion[k] = Hinv + G * Cc * G.transpose();
