@@ -197,6 +197,24 @@ TEST(PlaneBatchBound, EqualsCeresCovarianceOnAFullRankProblem) {
   EXPECT_LT((b.cov_N[0] - r.cov_N[0]).norm(), 1e-6 * r.cov_N[0].norm());
 }
 
+TEST(PlaneBatchBound, AFrameItCannotUseIsNamedByTheCallersFrameNumber) {
+  // Frame 5 keeps 3 observations (its motion needs 4): without skipping, the bound fails and its
+  // message names the frame as the caller numbers it (data.frame_numbers: frames left out before,
+  // e.g. a still start), not by its index in the problem; with skipping, it is listed (by index).
+  Sequence s = makeSequence(1.0, 7, 20);
+  const PlaneBatchState st = truthState(s);
+  s.data.frames[5].resize(3);
+  for (size_t k = 0; k < s.data.frames.size(); ++k) s.data.frame_numbers.push_back(100 + static_cast<int>(k));
+  const PlaneBatchBound fails = planeBatchBound(s.data, st);
+  EXPECT_FALSE(fails.ok);
+  EXPECT_NE(fails.message.find("frame 105 has 3 observations"), std::string::npos) << fails.message;
+  PlaneBatchBoundOptions skip;
+  skip.skip_undetermined_frames = true;
+  const PlaneBatchBound skipped = planeBatchBound(s.data, st, skip);
+  ASSERT_TRUE(skipped.ok) << skipped.message;
+  EXPECT_EQ(skipped.skipped_frames, std::vector<int>{5});
+}
+
 TEST(PlaneBatchBound, NullSpacesOfPureRotationAndPureTranslation) {
   // Pure rotation: no translation, so the plane is invisible in the data (its two free
   // components are in the null space) while beta is determined. Pure translation: the affine

@@ -521,7 +521,7 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
     const Eigen::Vector3d w = motion[k].tail<3>();
     if (!incrementalRotationValid(w)) {
       res.converged = false;
-      res.message = "batch: rotation left the incremental domain at frame " + std::to_string(k);
+      res.message = "batch: rotation left the incremental domain at frame " + std::to_string(data.frameName(k));
       return res;
     }
     res.state.R[k] = incrementalRotation(w) * start.R[k];

@@ -146,7 +146,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     const auto& obs = data.frames[k];
     auto skip = [&](const std::string& why) {
       if (!opt.skip_undetermined_frames) {
-        out.message = fmt::format("bound: frame {} {}", k, why);
+        out.message = fmt::format("bound: frame {} {}", data.frameName(k), why);
         return false;
       }
       out.skipped_frames.push_back(k);
@@ -186,7 +186,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       Eigen::Matrix<double, 2, 10> Jc;
       int q = 0;
       if (!frameRow(k, o, &r, &Jm, idx, &Jc, &q)) {
-        out.message = fmt::format("bound: point {} cannot be projected at frame {}", o.id, k);
+        out.message = fmt::format("bound: track {} cannot be projected at frame {}", data.pointName(o.id), data.frameName(k));
         return out;
       }
       for (int a = 0; a < q; ++a) idx[a] = local(idx[a]);

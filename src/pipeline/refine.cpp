@@ -24,11 +24,10 @@ namespace rsfm {
 namespace {
 
 /// The batch problem of the labelled tracks: points, their reference positions (from the
-/// filter), the start state.
+/// filter), the start state. data.point_ids: the track id of each point.
 struct Problem {
   PlaneBatchData data;
   PlaneBatchState start;
-  std::vector<int> track_of_point;
   int unpredictable = 0;  ///< observations left out: the start cannot predict them
 };
 
@@ -87,6 +86,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     p.data.num_planes = m;
     p.data.gauge_plane = 0;
     p.data.gauge_component = 2;
+    for (int k = 0; k < F; ++k) p.data.frame_numbers.push_back(tracks.frameNumber(k));
     p.start.beta = from ? from->beta : last.beta;
     p.start.N = from ? from->N : last.N;
     p.start.camera = from ? from->camera : Eigen::Vector4d::Zero();
@@ -117,8 +117,8 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
           if (PlaneModel::transferToReference(last.N[lab[id]], f.beta, f.R, f.t, uv, &ref) != MeasureStatus::Ok) continue;
         }
       }
-      point_of_track[id] = static_cast<int>(p.track_of_point.size());
-      p.track_of_point.push_back(id);
+      point_of_track[id] = static_cast<int>(p.data.point_ids.size());
+      p.data.point_ids.push_back(id);
       p.data.labels.push_back(lab[id]);
       p.start.ref.push_back(ref);
     }
@@ -188,7 +188,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   }
   // 1. The start's residuals set the noise and the loss's scale.
   Problem p = build(selected, nullptr, nullptr);
-  if (static_cast<int>(p.track_of_point.size()) < 5) {
+  if (static_cast<int>(p.data.point_ids.size()) < 5) {
     r.message = "fewer than 5 tracks on planes to refine";
     return r;
   }
@@ -233,12 +233,12 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     ss = 0;
     for (double x : all) ss += x * x;
     const int n_cam = static_cast<int>(std::count(bound_camera.begin(), bound_camera.end(), true));  // the bound's parameters
-    const int n_params = 6 * (F - 1) + 1 + (3 * m - 1) + 2 * static_cast<int>(p.track_of_point.size()) + n_cam;
+    const int n_params = 6 * (F - 1) + 1 + (3 * m - 1) + 2 * static_cast<int>(p.data.point_ids.size()) + n_cam;
     const int n_res = static_cast<int>(all.size());
     r.final_rms_px = all.empty() ? 0.0 : std::sqrt(ss / all.size());
     r.sigma_px = n_res > n_params ? std::sqrt(ss / (n_res - n_params)) : r.final_rms_px;
     r.robust_sigma_px = robustSd(all);
-    r.tracks = static_cast<int>(p.track_of_point.size());
+    r.tracks = static_cast<int>(p.data.point_ids.size());
     r.observations = n_res / 2;
     {
       // Pooled autocorrelation of the residuals along tracks (x and y separately), lags 1..50,
@@ -386,17 +386,17 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       const int j = p.data.labels[i];
       ++r.plane_tracks[j];
       if (rms > ro.outlier_sigmas * sigma1) {
-        lab[p.track_of_point[i]] = -1;
+        lab[p.data.point_ids[i]] = -1;
         ++r.relabelled;
         ++r.plane_relabelled[j];
       }
     }
     if (r.relabelled > 0) {
-      Problem q = build(lab, &res.state, &p.track_of_point);
+      Problem q = build(lab, &res.state, &p.data.point_ids);
       PlaneBatchResult res2;
       const std::array<bool, 4> free_before = r.camera_free;
       const std::size_t why_before = why.size();
-      bool solved = static_cast<int>(q.track_of_point.size()) >= 5 && solve(q, sigma1, &res2);
+      bool solved = static_cast<int>(q.data.point_ids.size()) >= 5 && solve(q, sigma1, &res2);
       for (int round = 0; round < 2 && solved && holdImplausible(res2.state); ++round) {
         // Without the outliers the data pull the camera where no camera is (box.mp4's windows
         // 14 and 18: the principal point 195 px below the centre): held, as in stage 2, and
@@ -745,10 +745,10 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   out.transfer_failed.assign(m, 0);
   std::vector<double> plane_ss(m, 0.0);
   std::vector<long> plane_n(m, 0);
-  for (std::size_t i = 0; i < p.track_of_point.size(); ++i) {
+  for (std::size_t i = 0; i < p.data.point_ids.size(); ++i) {
     const int l = p.data.labels[i];
     ++out.plane_tracks[l];
-    if (spans[p.track_of_point[i]].first > 0) ++out.plane_new_tracks[l];
+    if (spans[p.data.point_ids[i]].first > 0) ++out.plane_new_tracks[l];
     for (double x : per[i]) plane_ss[l] += x * x, ++plane_n[l];
   }
   for (int j = 0; j < m; ++j) out.plane_rms_px.push_back(plane_n[j] ? std::sqrt(plane_ss[j] / plane_n[j]) : 0.0);

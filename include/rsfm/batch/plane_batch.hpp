@@ -72,6 +72,12 @@ struct PlaneBatchData {
   double sigma_uv = 2.0 / 256.0;                 ///< measurement standard deviation (normalized)
   int gauge_plane = 0;                           ///< plane whose component is held fixed
   int gauge_component = 2;                       ///< 0: N_X, 1: N_Y, 2: N_Z
+  /// Names for messages only: the input frame number of each of frames 0..F and the track id of
+  /// each point (empty: their indices here). A caller that left frames out (a still stretch) or
+  /// kept only some tracks passes them, so that a message names what the user gave.
+  std::vector<int> frame_numbers, point_ids;
+  int frameName(int k) const { return k >= 0 && k < static_cast<int>(frame_numbers.size()) ? frame_numbers[k] : k; }
+  int pointName(int i) const { return i >= 0 && i < static_cast<int>(point_ids.size()) ? point_ids[i] : i; }
 };
 
 /// A state of the whole sequence (the start, e.g. the filter's per-frame estimates, or the result).
