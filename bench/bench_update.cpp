@@ -41,7 +41,14 @@ FilterOptions options() {
   return fo;
 }
 
-void BM_PlaneUpdate(benchmark::State& state) {
+// BM_PlaneUpdate/N: the fused one-plane update as a user gets it (the AVX2/FMA kernel where the
+// CPU has it); BM_PlaneUpdatePortable/N: the same with the portable (x86-64 baseline) kernel.
+void planeUpdate(benchmark::State& state, bool vector_kernel) {
+  if (vector_kernel && !Ekf::vectorKernelAvailable()) {
+    state.SkipWithError("this CPU has no AVX2/FMA");
+    return;
+  }
+  const bool previous = Ekf::useVectorKernel(vector_kernel);
   const int n = static_cast<int>(state.range(0));
   const Setup s = makeSetup(n);
   Eigen::VectorXd x0 = Eigen::VectorXd::Zero(10);
@@ -60,10 +67,13 @@ void BM_PlaneUpdate(benchmark::State& state) {
     benchmark::DoNotOptimize(fs);
     if (!fs.update.applied) state.SkipWithError("update not applied");
   }
+  Ekf::useVectorKernel(previous);
   state.counters["points"] = n;
   state.counters["time_per_point"] = benchmark::Counter(
       static_cast<double>(state.iterations()) * n, benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
 }
+void BM_PlaneUpdate(benchmark::State& state) { planeUpdate(state, Ekf::vectorKernelAvailable()); }
+void BM_PlaneUpdatePortable(benchmark::State& state) { planeUpdate(state, false); }
 
 void BM_PointUpdate(benchmark::State& state) {
   const int n = static_cast<int>(state.range(0));
@@ -132,6 +142,7 @@ void BM_PatchStep(benchmark::State& state) {
 
 BENCHMARK(BM_PatchStep)->ArgsProduct({{10, 50, 100}, {0, 1}})->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_PlaneUpdate)->Arg(30)->Arg(300)->Arg(3000)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_PlaneUpdatePortable)->Arg(30)->Arg(300)->Arg(3000)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_PointUpdate)->Arg(30)->Arg(300)->Unit(benchmark::kMicrosecond);
 // The final refinement (pipeline/refine.hpp) of 150 frames of three planes: the synthetic cube
 // seen corner-on (30 points per face, 0.5 px noise), started from the filter's run (not timed).

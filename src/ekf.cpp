@@ -3,10 +3,15 @@
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <stdexcept>
 
 #include "rsfm/chi2.hpp"
+
+#if defined(__GNUC__) && defined(__x86_64__)
+#include <immintrin.h>
+#endif
 
 namespace rsfm {
 
@@ -323,30 +328,42 @@ bool nonFinite(UpdateStats* st) {
 }
 }  // namespace
 
-// The fused two-row path (issue 15 item 1). The blocks all depend on the same W free columns,
-// and these are the free components in order, so with P_f = G G^T (Cholesky, G lower triangular)
-// block b's whitened rows are A_b = L_b^-1 H_b G with A_b(:, c) = sum_{j >= c} H_b(:, j) G(j, c):
-// half the multiply-adds of a general product. The gate (as in gateAndWhiten), the information
-// sums M = I + sum_b A_b^T A_b and g = sum_b A_b^T e_b, and e^T e are accumulated in the same
-// pass in W-sized fixed types, so no m x W matrix is written and read back. When the information
-// form applies, the update follows here too in fixed types (dx = G M^-1 g, P+ = T^T T with
-// T = L^-1 G^T, nis = e^T e - g^T M^-1 g: the same equations as Ekf::update). Otherwise the
-// accepted blocks' rows are kept in A and e for the covariance form, which update() applies.
+namespace {
+/// The fused pass's inputs (Ekf::fusedTwoRow): the batch, its W free columns' places `pos` in J,
+/// the `nskip` fixed columns `skip` between them (checked for finiteness only), the common
+/// R_b = iso I (iso > 0, folded into Gs with inv_s = iso^-1/2) or 0, the gate, how many rows of
+/// the accepted blocks' A and e to keep for the covariance form, and the statistics.
+struct FusedPass {
+  const BlockBatch* batch;
+  const int* pos;
+  const int* skip;
+  int nskip;
+  double iso, inv_s;
+  bool gating;
+  double gate;
+  int keep_rows;
+  RowMatrixXd* A;
+  Eigen::VectorXd* e;
+  UpdateStats* st;
+};
+/// What the pass leaves: M = I + sum_b A_b^T A_b (lower half), g = sum_b A_b^T e_b, e^T e
+/// (whitened), the raw residuals' sum of squares (pixels^2) and the number of accepted blocks.
 template <int W>
-bool Ekf::fusedTwoRow(const BlockBatch& batch, const UpdateOptions& opt, UpdateStats* st, const int* pos,
-                      const int* skip, int nskip, double iso) {
-  using MatW = Eigen::Matrix<double, W, W>;
-  using VecW = Eigen::Matrix<double, W, 1>;
+struct FusedSums {
+  Eigen::Matrix<double, W, W> M;
+  Eigen::Matrix<double, W, 1> g;
+  double ee = 0.0, ss = 0.0;
+  int k = 0;
+};
+
+/// The portable pass (x86-64 baseline, SSE2: one 2-vector holds a block's two rows). False with
+/// the statistics' health set on a non-finite input or a bad R_b.
+template <int W>
+bool fusedSumsPortable(const FusedPass& in, const Eigen::Matrix<double, W, W>& Gs, FusedSums<W>* out) {
   using Mat2W = Eigen::Matrix<double, 2, W>;
-  Work& w = w_;
+  const BlockBatch& batch = *in.batch;
+  UpdateStats* st = in.st;
   const int nb = batch.blocks;
-  const double inv_s = iso > 0.0 ? 1.0 / std::sqrt(iso) : 1.0;
-  const MatW G = w.G;
-  const MatW Gs = G * inv_s;  // R_b = iso I folded into G (as in gateAndWhiten)
-  const bool gating = opt.gate_probability > 0.0 && opt.gate_probability < 1.0;
-  // Rows of A the covariance form may need: all when it is asked for; with Auto only while the
-  // accepted rows could still number no more than W (the covariance form's condition).
-  const int keep_rows = opt.form == UpdateForm::Covariance ? 2 * nb : opt.form == UpdateForm::Information ? 0 : W;
   Eigen::Matrix<double, 2, W*(W + 1) / 2> Mp = Eigen::Matrix<double, 2, W*(W + 1) / 2>::Zero();
   Mat2W gp = Mat2W::Zero();
   double ee = 0.0, ss = 0.0;
@@ -356,14 +373,14 @@ bool Ekf::fusedTwoRow(const BlockBatch& batch, const UpdateOptions& opt, UpdateS
     const double r00 = batch.R(r, 0), r01 = batch.R(r, 1), r10 = batch.R(r + 1, 0), r11 = batch.R(r + 1, 1);
     const double e0r = batch.residual[r], e1r = batch.residual[r + 1];
     if (!std::isfinite(r00 + r01 + r10 + r11 + e0r + e1r)) return nonFinite(st);
-    for (int q = 0; q < nskip; ++q)
-      if (!std::isfinite(batch.J(r, skip[q]) + batch.J(r + 1, skip[q]))) return nonFinite(st);
+    for (int q = 0; q < in.nskip; ++q)
+      if (!std::isfinite(batch.J(r, in.skip[q]) + batch.J(r + 1, in.skip[q]))) return nonFinite(st);
     // Column j of Hb holds both rows' entries (one SSE2 packet); so do A_b's columns.
     Mat2W Hb;
-    for (int j = 0; j < W; ++j) Hb.col(j) << batch.J(r, pos[j]), batch.J(r + 1, pos[j]);
+    for (int j = 0; j < W; ++j) Hb.col(j) << batch.J(r, in.pos[j]), batch.J(r + 1, in.pos[j]);
     Eigen::Vector2d eb;
-    if (iso > 0.0) {
-      eb << e0r * inv_s, e1r * inv_s;
+    if (in.iso > 0.0) {
+      eb << e0r * in.inv_s, e1r * in.inv_s;
     } else {  // whiten H_b's rows and r_b with L_b^-1 (L_b L_b^T = R_b), before the product
       Chol2 l;
       if (!cholesky2(r00, r10, r11, &l)) {
@@ -389,16 +406,16 @@ bool Ekf::fusedTwoRow(const BlockBatch& batch, const UpdateOptions& opt, UpdateS
     for (int c = 1; c < W; ++c) sd += Ab.col(c).cwiseAbs2(), s01 += Ab(0, c) * Ab(1, c);
     const double s00 = 1.0 + sd[0], s11 = 1.0 + sd[1];
     if (!std::isfinite(s00 + s11)) return nonFinite(st);  // a non-finite Jacobian entry
-    if (gating) {
-      if (!(gateDistance2(s00, s01, s11, eb[0], eb[1]) <= w.gate)) {
+    if (in.gating) {
+      if (!(gateDistance2(s00, s01, s11, eb[0], eb[1]) <= in.gate)) {
         st->gated_mask[b] = 1;
         ++st->gated;
         continue;
       }
     }
-    if (2 * k + 2 <= keep_rows) {
-      w.A.block(2 * k, 0, 2, W) = Ab;
-      w.e.template segment<2>(2 * k) = eb;
+    if (2 * k + 2 <= in.keep_rows) {
+      in.A->block(2 * k, 0, 2, W) = Ab;
+      in.e->template segment<2>(2 * k) = eb;
     }
     // M and g accumulated per row lane: Mp(:, t) += A_b(:, i) .* A_b(:, c) for t = (i, c), i >= c,
     // and gp(:, c) += A_b(:, c) .* e_b; the two lanes are added once after the loop.
@@ -413,6 +430,201 @@ bool Ekf::fusedTwoRow(const BlockBatch& batch, const UpdateOptions& opt, UpdateS
     ss += e0r * e0r + e1r * e1r;
     ++k;
   }
+  for (int c = 0, t = 0; c < W; ++c)
+    for (int i = c; i < W; ++i, ++t) out->M(i, c) = Mp(0, t) + Mp(1, t) + (i == c ? 1.0 : 0.0);
+  out->g = gp.colwise().sum().transpose();
+  out->ee = ee, out->ss = ss, out->k = k;
+  return true;
+}
+
+#if defined(__GNUC__) && defined(__x86_64__)
+#define RSFM_AVX2_KERNEL 1
+/// The same pass with AVX2 and FMA (chosen at run time when the CPU has them; the build targets
+/// the x86-64 baseline): two blocks at a time, one 4-vector holding both blocks' two rows
+/// (lanes b.0, b.1, b+1.0, b+1.1), so A_b = H_b G and the sums M, g take one fused multiply-add
+/// per entry for two blocks instead of a multiply and an add per block. The results differ from
+/// the portable pass's by rounding only (FMA, the lanes' summation order). False, with nothing
+/// but gated_mask and gated touched, on any non-finite input or bad R_b: the caller then runs the
+/// portable pass, which reports the failure exactly as before.
+template <int W>
+[[gnu::target("avx2,fma")]] bool fusedSumsAvx2(const FusedPass& in, const Eigen::Matrix<double, W, W>& Gs,
+                                               FusedSums<W>* out) {
+  constexpr int kTri = W * (W + 1) / 2;
+  const BlockBatch& batch = *in.batch;
+  UpdateStats* st = in.st;
+  const int nb = batch.blocks;
+  const double* J = batch.J.data();
+  const Eigen::Index js = batch.J.outerStride();  // row-major: one row is contiguous
+  __m256d Mp[kTri], gp[W], H[W], A[W];
+  for (int t = 0; t < kTri; ++t) Mp[t] = _mm256_setzero_pd();
+  for (int c = 0; c < W; ++c) gp[c] = _mm256_setzero_pd();
+  double ee = 0.0, ss = 0.0;
+  int k = 0;
+  for (int b = 0; b < nb; b += 2) {
+    const int nq = std::min(2, nb - b);
+    // Per lane: the whitened residual, the raw one, and L_b^-1 as h0' = h0 * s0,
+    // h1' = (h1 - l10 h0') * s1 (lanes beyond the last block stay zero).
+    alignas(32) double e[4] = {0.0, 0.0, 0.0, 0.0}, raw[4] = {0.0, 0.0, 0.0, 0.0};
+    alignas(32) double ws0[4] = {1.0, 1.0, 1.0, 1.0}, wl[4] = {0.0, 0.0, 0.0, 0.0}, ws1[4] = {1.0, 1.0, 1.0, 1.0};
+    for (int q = 0; q < nq; ++q) {
+      const int r = 2 * (b + q);
+      const double r00 = batch.R(r, 0), r01 = batch.R(r, 1), r10 = batch.R(r + 1, 0), r11 = batch.R(r + 1, 1);
+      const double e0r = batch.residual[r], e1r = batch.residual[r + 1];
+      if (!std::isfinite(r00 + r01 + r10 + r11 + e0r + e1r)) return false;
+      for (int s = 0; s < in.nskip; ++s)
+        if (!std::isfinite(J[r * js + in.skip[s]] + J[(r + 1) * js + in.skip[s]])) return false;
+      raw[2 * q] = e0r, raw[2 * q + 1] = e1r;
+      if (in.iso > 0.0) {
+        e[2 * q] = e0r * in.inv_s, e[2 * q + 1] = e1r * in.inv_s;
+      } else {
+        Chol2 l;
+        if (!cholesky2(r00, r10, r11, &l)) return false;
+        ws0[2 * q] = 1.0 / l.l00, wl[2 * q + 1] = l.l10, ws1[2 * q + 1] = 1.0 / l.l11;
+        e[2 * q] = e0r / l.l00;
+        e[2 * q + 1] = (e1r - l.l10 * e[2 * q]) / l.l11;
+      }
+    }
+    const double* j0 = J + 2 * b * js;
+#pragma GCC unroll 16
+    for (int j = 0; j < W; ++j) {
+      const double* c = j0 + in.pos[j];
+      H[j] = nq == 2 ? _mm256_set_pd(c[3 * js], c[2 * js], c[js], c[0]) : _mm256_set_pd(0.0, 0.0, c[js], c[0]);
+    }
+    if (!(in.iso > 0.0)) {
+      const __m256d s0 = _mm256_load_pd(ws0), l10 = _mm256_load_pd(wl), s1 = _mm256_load_pd(ws1);
+#pragma GCC unroll 16
+      for (int j = 0; j < W; ++j) {
+        const __m256d h = _mm256_mul_pd(H[j], s0);  // row 0 whitened, row 1 as it was
+        H[j] = _mm256_mul_pd(_mm256_fnmadd_pd(l10, _mm256_permute_pd(h, 0b0101), h), s1);
+      }
+    }
+    // A_b(:, c) = sum_{j >= c} H_b(:, j) G(j, c) (G lower triangular), both blocks at once.
+#pragma GCC unroll 16
+    for (int c = 0; c < W; ++c) {
+      __m256d acc = _mm256_mul_pd(H[c], _mm256_set1_pd(Gs(c, c)));
+#pragma GCC unroll 16
+      for (int j = c + 1; j < W; ++j) acc = _mm256_fmadd_pd(H[j], _mm256_set1_pd(Gs(j, c)), acc);
+      A[c] = acc;
+    }
+    // S_b - I = A_b A_b^T: the diagonals in sd's lanes, the off-diagonals in so's lanes 0 and 2
+    // (each row times its block's other row: the in-pair swap).
+    __m256d sd = _mm256_mul_pd(A[0], A[0]), so = _mm256_mul_pd(A[0], _mm256_permute_pd(A[0], 0b0101));
+#pragma GCC unroll 16
+    for (int c = 1; c < W; ++c) {
+      sd = _mm256_fmadd_pd(A[c], A[c], sd);
+      so = _mm256_fmadd_pd(A[c], _mm256_permute_pd(A[c], 0b0101), so);
+    }
+    alignas(32) double sdv[4], sov[4], mask[4] = {0.0, 0.0, 0.0, 0.0};
+    _mm256_store_pd(sdv, sd);
+    _mm256_store_pd(sov, so);
+    int accepted = 0;
+    for (int q = 0; q < nq; ++q) {
+      const double s00 = 1.0 + sdv[2 * q], s11 = 1.0 + sdv[2 * q + 1];
+      if (!std::isfinite(s00 + s11)) return false;  // a non-finite Jacobian entry
+      const double e0 = e[2 * q], e1 = e[2 * q + 1];
+      if (in.gating && !(gateDistance2(s00, sov[2 * q], s11, e0, e1) <= in.gate)) {
+        st->gated_mask[b + q] = 1;
+        ++st->gated;
+        continue;
+      }
+      mask[2 * q] = mask[2 * q + 1] = 1.0;
+      ++accepted;
+      if (2 * k + 2 <= in.keep_rows) {
+        alignas(32) double col[4];
+        for (int c = 0; c < W; ++c) {
+          _mm256_store_pd(col, A[c]);
+          (*in.A)(2 * k, c) = col[2 * q], (*in.A)(2 * k + 1, c) = col[2 * q + 1];
+        }
+        (*in.e)[2 * k] = e0, (*in.e)[2 * k + 1] = e1;
+      }
+      ee += e0 * e0 + e1 * e1;
+      ss += raw[2 * q] * raw[2 * q] + raw[2 * q + 1] * raw[2 * q + 1];
+      ++k;
+    }
+    if (accepted == 0) continue;
+    __m256d ev = _mm256_load_pd(e);
+    if (accepted < 2) {  // one block of the pair gated (or the last, single block): zero its lanes
+      const __m256d m = _mm256_load_pd(mask);
+      ev = _mm256_mul_pd(ev, m);
+#pragma GCC unroll 16
+      for (int c = 0; c < W; ++c) A[c] = _mm256_mul_pd(A[c], m);
+    }
+#pragma GCC unroll 16
+    for (int c = 0, t = 0; c < W; ++c) {
+#pragma GCC unroll 16
+      for (int i = c; i < W; ++i, ++t) Mp[t] = _mm256_fmadd_pd(A[i], A[c], Mp[t]);
+      gp[c] = _mm256_fmadd_pd(A[c], ev, gp[c]);
+    }
+  }
+  alignas(32) double v[4];
+  for (int c = 0, t = 0; c < W; ++c) {
+    for (int i = c; i < W; ++i, ++t) {
+      _mm256_store_pd(v, Mp[t]);
+      out->M(i, c) = (v[0] + v[1]) + (v[2] + v[3]) + (i == c ? 1.0 : 0.0);
+    }
+    _mm256_store_pd(v, gp[c]);
+    out->g[c] = (v[0] + v[1]) + (v[2] + v[3]);
+  }
+  out->ee = ee, out->ss = ss, out->k = k;
+  return true;
+}
+#endif
+
+std::atomic<bool> g_vector_kernel{true};
+
+bool cpuHasAvx2Fma() {
+#ifdef RSFM_AVX2_KERNEL
+  static const bool has = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  return has;
+#else
+  return false;
+#endif
+}
+}  // namespace
+
+bool Ekf::vectorKernelAvailable() { return cpuHasAvx2Fma(); }
+
+bool Ekf::useVectorKernel(bool enable) { return g_vector_kernel.exchange(enable); }
+
+// The fused two-row path (issue 15 item 1). The blocks all depend on the same W free columns,
+// and these are the free components in order, so with P_f = G G^T (Cholesky, G lower triangular)
+// block b's whitened rows are A_b = L_b^-1 H_b G with A_b(:, c) = sum_{j >= c} H_b(:, j) G(j, c):
+// half the multiply-adds of a general product. The gate (as in gateAndWhiten), the information
+// sums M = I + sum_b A_b^T A_b and g = sum_b A_b^T e_b, and e^T e are accumulated in the same
+// pass in W-sized fixed types (fusedSumsPortable, or fusedSumsAvx2 where the CPU has AVX2 and
+// FMA), so no m x W matrix is written and read back. When the information form applies, the
+// update follows here too in fixed types (dx = G M^-1 g, P+ = T^T T with T = L^-1 G^T,
+// nis = e^T e - g^T M^-1 g: the same equations as Ekf::update). Otherwise the accepted blocks'
+// rows are kept in A and e for the covariance form, which update() applies.
+template <int W>
+bool Ekf::fusedTwoRow(const BlockBatch& batch, const UpdateOptions& opt, UpdateStats* st, const int* pos,
+                      const int* skip, int nskip, double iso) {
+  using MatW = Eigen::Matrix<double, W, W>;
+  using VecW = Eigen::Matrix<double, W, 1>;
+  Work& w = w_;
+  const int nb = batch.blocks;
+  const double inv_s = iso > 0.0 ? 1.0 / std::sqrt(iso) : 1.0;
+  const MatW G = w.G;
+  const MatW Gs = G * inv_s;  // R_b = iso I folded into G (as in gateAndWhiten)
+  FusedPass in;
+  in.batch = &batch, in.pos = pos, in.skip = skip, in.nskip = nskip, in.iso = iso, in.inv_s = inv_s;
+  in.gating = opt.gate_probability > 0.0 && opt.gate_probability < 1.0;
+  in.gate = w.gate;
+  // Rows of A the covariance form may need: all when it is asked for; with Auto only while the
+  // accepted rows could still number no more than W (the covariance form's condition).
+  in.keep_rows = opt.form == UpdateForm::Covariance ? 2 * nb : opt.form == UpdateForm::Information ? 0 : W;
+  in.A = &w.A, in.e = &w.e, in.st = st;
+  FusedSums<W> sums;
+  bool done = false;
+#ifdef RSFM_AVX2_KERNEL
+  if (cpuHasAvx2Fma() && g_vector_kernel.load(std::memory_order_relaxed)) {
+    done = fusedSumsAvx2<W>(in, Gs, &sums);
+    if (!done) st->reset(nb);  // the portable pass reports the failure, block by block
+  }
+#endif
+  if (!done && !fusedSumsPortable<W>(in, Gs, &sums)) return false;
+  const int k = sums.k;
+  const double ee = sums.ee, ss = sums.ss;
   st->used = k;
   st->nis_dof = 2 * k;
   if (k < std::max(1, opt.min_blocks)) {
@@ -423,10 +635,8 @@ bool Ekf::fusedTwoRow(const BlockBatch& batch, const UpdateOptions& opt, UpdateS
   const UpdateForm form = opt.form != UpdateForm::Auto ? opt.form : 2 * k > W ? UpdateForm::Information : UpdateForm::Covariance;
   if (form != UpdateForm::Information) return true;  // update() applies the covariance form to A, e
   st->form_used = form;
-  MatW M;  // I + sum_b A_b^T A_b (lower half; LLT reads no other)
-  for (int c = 0, t = 0; c < W; ++c)
-    for (int i = c; i < W; ++i, ++t) M(i, c) = Mp(0, t) + Mp(1, t) + (i == c ? 1.0 : 0.0);
-  const VecW g = gp.colwise().sum().transpose();
+  MatW M = sums.M;  // I + sum_b A_b^T A_b (lower half; LLT reads no other)
+  const VecW g = sums.g;
   MatW& L = M;  // M = L L^T in place
   if (!smallCholesky(L)) {
     st->health |= kSolveFailed;

@@ -3,6 +3,7 @@
 // as it was at 0d28b21, kept verbatim in reference_update.hpp.
 #include <gtest/gtest.h>
 
+#include <iostream>
 #include <random>
 
 #include "reference_update.hpp"
@@ -57,6 +58,19 @@ Problem make(const Case& c) {
     b.R.block(k * c.bd, 0, c.bd, c.bd) = Rb;
   }
   return p;
+}
+
+/// The fused one-plane update's two kernels (ekf.hpp Ekf::useVectorKernel): the portable one,
+/// and the AVX2/FMA one where this CPU has it. Each test runs under both; the setting is restored.
+struct KernelChoice {
+  explicit KernelChoice(bool vector) : previous(Ekf::useVectorKernel(vector)) {}
+  ~KernelChoice() { Ekf::useVectorKernel(previous); }
+  bool previous;
+};
+std::vector<bool> kernels() {
+  if (Ekf::vectorKernelAvailable()) return {false, true};
+  std::cout << "[ note ] this CPU has no AVX2/FMA: the vector kernel is not tested here\n";
+  return {false};
 }
 
 void expectSame(const Case& c, UpdateForm form) {
@@ -119,6 +133,11 @@ TEST(UpdateEquivalence, MatchesTheReferenceUpdateOnFixedData) {
         c.fixed = fixed, c.isotropic = isotropic;
         cases.push_back(c);
       }
+    // An odd number of blocks (the AVX2 kernel takes them two at a time) and a pair with one
+    // block gated (blocks 0-2 are the outliers: pair (0, 1) both gated, pair (2, 3) one).
+    c.blocks = 41;
+    cases.push_back(c);
+    c.blocks = 40;
     c.n = 40, c.blocks = 60, c.fixed = {7};
     cases.push_back(c);                                 // a point model's size
     c.bd = 6, c.blocks = 12, c.n = 19, c.fixed = {};
@@ -130,12 +149,18 @@ TEST(UpdateEquivalence, MatchesTheReferenceUpdateOnFixedData) {
     c.semidefinite = false, c.blocks = 4, c.outliers = 0;
     cases.push_back(c);                                 // fewer rows than states: covariance form
   }
-  for (const Case& c : cases)
-    for (UpdateForm form : {UpdateForm::Auto, UpdateForm::Information, UpdateForm::Covariance}) expectSame(c, form);
+  for (const bool vector : kernels()) {
+    SCOPED_TRACE(vector ? "AVX2/FMA kernel" : "portable kernel");
+    const KernelChoice kc(vector);
+    for (const Case& c : cases)
+      for (UpdateForm form : {UpdateForm::Auto, UpdateForm::Information, UpdateForm::Covariance}) expectSame(c, form);
+  }
 }
 
 TEST(UpdateEquivalence, NonFiniteJacobianAnywhereSkipsTheUpdate) {
+  for (const bool vector : kernels())
   for (int where : {0, 17, 39}) {
+    const KernelChoice kc(vector);
     Case c;
     Problem p = make(c);
     p.compact.J(2 * where + 1, 8) = std::numeric_limits<double>::infinity();
@@ -152,6 +177,8 @@ TEST(UpdateEquivalence, NonFiniteJacobianAnywhereSkipsTheUpdate) {
 // The fused one-plane path leaves a fixed column out of its products; an Inf there must still
 // skip the update, as the general path's A = H G turns it into NaN.
 TEST(UpdateEquivalence, NonFiniteJacobianInAFixedColumnSkipsTheUpdate) {
+  for (const bool vector : kernels()) {
+  const KernelChoice kc(vector);
   Case c;
   c.fixed = {6};
   Problem p = make(c);
@@ -162,6 +189,30 @@ TEST(UpdateEquivalence, NonFiniteJacobianInAFixedColumnSkipsTheUpdate) {
   EXPECT_FALSE(st.applied);
   EXPECT_TRUE(st.health & kNonFiniteInput);
   EXPECT_EQ(ekf.x(), p.x0);
+  }
+}
+
+// A block whose R_b is not positive definite stops the fused update with
+// kBadMeasurementCovariance under both kernels and with the same statistics: the blocks before it
+// were gated (0-2) or accepted, and the vector kernel, which meets the failure with block 4 in the
+// same pair, hands the frame to the portable one.
+TEST(UpdateEquivalence, BadNoiseInAPairStopsTheUpdateAlike) {
+  for (const bool vector : kernels()) {
+    SCOPED_TRACE(vector ? "AVX2/FMA kernel" : "portable kernel");
+    const KernelChoice kc(vector);
+    Case c;
+    c.isotropic = false;
+    Problem p = make(c);
+    p.compact.R(2 * 5 + 1, 1) = -1.0;  // block 5's R_b: the second pivot is negative
+    Ekf ekf(p.x0, p.P0, p.fixed);
+    UpdateStats st;
+    ekf.update(p.compact, UpdateOptions{}, &st);
+    EXPECT_FALSE(st.applied);
+    EXPECT_TRUE(st.health & kBadMeasurementCovariance);
+    EXPECT_EQ(st.gated, 3);
+    EXPECT_EQ(st.gated_mask[0] + st.gated_mask[1] + st.gated_mask[2] + st.gated_mask[4], 3);
+    EXPECT_EQ(ekf.x(), p.x0);
+  }
 }
 
 TEST(UpdateEquivalence, ShiftedResidualEqualsTheDenseShift) {

@@ -171,6 +171,14 @@ class Ekf {
   /// variance or asymmetry beyond round-off (kCovarianceNotPD).
   std::uint32_t health() const;
 
+  /// The fused one-plane update (issue 15) has an AVX2/FMA kernel chosen at run time when the
+  /// CPU has both (the build itself targets the x86-64 baseline); its results equal the portable
+  /// kernel's up to rounding (fused multiply-adds, summation order). True when this CPU has it.
+  static bool vectorKernelAvailable();
+  /// Allows (true, the default) or forbids the AVX2/FMA kernel for the whole process, for tests
+  /// and benchmarks that compare the two kernels; returns the previous setting.
+  static bool useVectorKernel(bool enable);
+
  private:
   /// Factors the free part of P (P_f = G G^T) into the work space; false (stats->health set) when
   /// P_f is not symmetric positive semi-definite.
