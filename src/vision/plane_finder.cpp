@@ -129,7 +129,12 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
     if (spans[id].first > 0 && spans[id].length() < o.min_new_track_frames) res.labels[id] = -2;
   std::vector<int> ref_ids;
   for (const auto& p : tracks.frames[0]) ref_ids.push_back(p.id);
-  const int n0 = static_cast<int>(ref_ids.size());
+  // The reference tracks that can be in any pair: seen in a later frame too. A tracker that
+  // loses half of its new tracks at once (lowtex-fast-blur: 229 tracks in frame 0, 107 in
+  // frame 1) would otherwise leave no frame with half of them alive, and the pair frame fell
+  // back to frame 1, whose 4 px of motion cannot tell the planes apart.
+  int n0 = 0;
+  for (int id : ref_ids) n0 += spans[id].length() >= 2;
   // Whether each track's own motion reaches the verification tolerance from where it was first
   // seen (issue 14 item 2): a track that never does fits "still" as well as any moving plane, so
   // it cannot test one. Used by the pair frame and by every plane's member test below.
@@ -260,11 +265,10 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
       if (static_cast<int>(c.members.size()) < o.min_plane_tracks) c.verdict = PlaneVerdict::TooFew;
     }
   } else {
-    // Sequential RANSAC at (reference, pair).
+    // Sequential RANSAC at (reference, pair_k) over the reference tracks `remaining` alive there.
     cv::theRNG().state = o.seed;
-    std::vector<int> remaining;
-    for (int id : ref_ids)
-      if (tracks.find(pair, id)) remaining.push_back(id);
+    auto sequentialRansac = [&](std::vector<int> remaining, int pair_k) {
+    const int pair = pair_k;
     for (int round = 0; round < o.max_planes + 3 && static_cast<int>(remaining.size()) >= o.min_plane_tracks; ++round) {
       std::vector<cv::Point2d> a, b;
       for (int id : remaining) {
@@ -290,6 +294,7 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
         }
       }
       FoundPlane c;
+      c.pair_frame = pair;
       std::vector<int> rest;
       for (size_t i = 0; i < a.size(); ++i) (mask[i] ? c.members : rest).push_back(remaining[i]);
       if (static_cast<int>(c.members.size()) < o.min_plane_tracks) break;
@@ -297,6 +302,29 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
       fitAllFrames(&c);
       if (static_cast<int>(c.members.size()) < o.min_plane_tracks) c.verdict = PlaneVerdict::TooFew;
       cands.push_back(std::move(c));
+    }
+    };
+    std::vector<int> at_pair, lost;  // reference tracks alive at the pair frame; those lost before it
+    for (int id : ref_ids)
+      (tracks.find(pair, id) ? at_pair : lost).push_back(id);
+    sequentialRansac(at_pair, pair);
+    // A plane whose reference tracks are all gone by the pair frame (a face leaving the view while
+    // the rest of the scene stays) is looked for among the reference tracks lost before it, at
+    // their own pair frame (the same rule: the last frame where half of those seen twice are
+    // alive, and a plane's worth). Their tracks otherwise could only join the planes found above.
+    int lost_n = 0;
+    for (int id : lost) lost_n += spans[id].length() >= 2;
+    int pair2 = -1;
+    for (int k = 1; k < pair && lost_n >= o.min_plane_tracks; ++k) {
+      int alive = 0;
+      for (int id : lost) alive += tracks.find(k, id) != nullptr;
+      if (alive >= std::max(o.min_alive_fraction * lost_n, 1.0 * o.min_plane_tracks)) pair2 = k;
+    }
+    if (pair2 > 0) {
+      std::vector<int> at_pair2;
+      for (int id : lost)
+        if (tracks.find(pair2, id)) at_pair2.push_back(id);
+      sequentialRansac(at_pair2, pair2);
     }
     // Merge candidates that are one plane split by the RANSAC threshold: their union must keep
     // 90 % of its tracks under the per-frame verification.
@@ -307,6 +335,7 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
           if (cands[a].verdict != PlaneVerdict::Accepted || cands[b].verdict != PlaneVerdict::Accepted) continue;
           FoundPlane u;
           u.members = cands[a].members;
+          u.pair_frame = cands[a].pair_frame;
           u.members.insert(u.members.end(), cands[b].members.begin(), cands[b].members.end());
           const size_t total = u.members.size();
           fitAllFrames(&u);
@@ -332,12 +361,13 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
       auto& c = cands[j];
       if (c.verdict != PlaneVerdict::Accepted || static_cast<int>(j) == main_plane) continue;
       std::vector<cv::Point2d> a, b;
+      const int cp = c.pair_frame;  // the main plane's homography is known in every frame
       for (int id : c.members)
-        if (tracks.find(pair, id)) {
+        if (tracks.find(cp, id)) {
           a.push_back(pt(*tracks.find(0, id)));
-          b.push_back(pt(*tracks.find(pair, id)));
+          b.push_back(pt(*tracks.find(cp, id)));
         }
-      c.same_motion_fraction = sameMotionFraction(cands[main_plane].H[pair], a, b, o.motion_px, o.seed + 17u * j);
+      c.same_motion_fraction = sameMotionFraction(cands[main_plane].H[cp], a, b, o.motion_px, o.seed + 17u * j);
       if (c.same_motion_fraction >= 0 && c.same_motion_fraction < o.same_motion_fraction)
         c.verdict = PlaneVerdict::OtherMotion;
     }

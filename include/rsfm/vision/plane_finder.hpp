@@ -53,6 +53,7 @@ struct FoundPlane {
   std::vector<int> support;           ///< members that determined H[k] (0: fit failed, H[k] = H[k-1])
   double median_motion_px = 0.0;      ///< largest median member displacement from the reference
   double same_motion_fraction = -1;   ///< plane+parallax agreement with the main plane (-1: main/untested)
+  int pair_frame = -1;                ///< the frame of the RANSAC pair it was found at (-1: manual ROI)
 };
 
 struct PlaneFinding {
