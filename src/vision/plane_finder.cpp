@@ -268,41 +268,41 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
     // Sequential RANSAC at (reference, pair_k) over the reference tracks `remaining` alive there.
     cv::theRNG().state = o.seed;
     auto sequentialRansac = [&](std::vector<int> remaining, int pair_k) {
-    const int pair = pair_k;
-    for (int round = 0; round < o.max_planes + 3 && static_cast<int>(remaining.size()) >= o.min_plane_tracks; ++round) {
-      std::vector<cv::Point2d> a, b;
-      for (int id : remaining) {
-        a.push_back(pt(*tracks.find(0, id)));
-        b.push_back(pt(*tracks.find(pair, id)));
-      }
-      std::vector<uchar> mask;
-      cv::Mat h = cv::findHomography(a, b, cv::RANSAC, ransac_px, mask, 3000, 0.999);
-      if (h.empty()) break;
-      cv::Matx33d H(h);
-      // Refit on the inliers and re-collect them (twice).
-      for (int it = 0; it < 2; ++it) {
-        std::vector<cv::Point2d> ia, ib;
-        for (size_t i = 0; i < a.size(); ++i)
-          if (mask[i]) {
-            ia.push_back(a[i]);
-            ib.push_back(b[i]);
-          }
-        if (!fitH(ia, ib, &H)) break;
-        for (size_t i = 0; i < a.size(); ++i) {
-          const cv::Point2d q = apply(H, a[i]);
-          mask[i] = std::hypot(q.x - b[i].x, q.y - b[i].y) < ransac_px;
+      const int pair = pair_k;
+      for (int round = 0; round < o.max_planes + 3 && static_cast<int>(remaining.size()) >= o.min_plane_tracks; ++round) {
+        std::vector<cv::Point2d> a, b;
+        for (int id : remaining) {
+          a.push_back(pt(*tracks.find(0, id)));
+          b.push_back(pt(*tracks.find(pair, id)));
         }
+        std::vector<uchar> mask;
+        cv::Mat h = cv::findHomography(a, b, cv::RANSAC, ransac_px, mask, 3000, 0.999);
+        if (h.empty()) break;
+        cv::Matx33d H(h);
+        // Refit on the inliers and re-collect them (twice).
+        for (int it = 0; it < 2; ++it) {
+          std::vector<cv::Point2d> ia, ib;
+          for (size_t i = 0; i < a.size(); ++i)
+            if (mask[i]) {
+              ia.push_back(a[i]);
+              ib.push_back(b[i]);
+            }
+          if (!fitH(ia, ib, &H)) break;
+          for (size_t i = 0; i < a.size(); ++i) {
+            const cv::Point2d q = apply(H, a[i]);
+            mask[i] = std::hypot(q.x - b[i].x, q.y - b[i].y) < ransac_px;
+          }
+        }
+        FoundPlane c;
+        c.pair_frame = pair;
+        std::vector<int> rest;
+        for (size_t i = 0; i < a.size(); ++i) (mask[i] ? c.members : rest).push_back(remaining[i]);
+        if (static_cast<int>(c.members.size()) < o.min_plane_tracks) break;
+        remaining.swap(rest);
+        fitAllFrames(&c);
+        if (static_cast<int>(c.members.size()) < o.min_plane_tracks) c.verdict = PlaneVerdict::TooFew;
+        cands.push_back(std::move(c));
       }
-      FoundPlane c;
-      c.pair_frame = pair;
-      std::vector<int> rest;
-      for (size_t i = 0; i < a.size(); ++i) (mask[i] ? c.members : rest).push_back(remaining[i]);
-      if (static_cast<int>(c.members.size()) < o.min_plane_tracks) break;
-      remaining.swap(rest);
-      fitAllFrames(&c);
-      if (static_cast<int>(c.members.size()) < o.min_plane_tracks) c.verdict = PlaneVerdict::TooFew;
-      cands.push_back(std::move(c));
-    }
     };
     std::vector<int> at_pair, lost;  // reference tracks alive at the pair frame; those lost before it
     for (int id : ref_ids)
