@@ -381,7 +381,10 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
                               {"moving_tracks", r.still.moving_tracks},
                               {"held_frames", heldFrames(tracks, r.still)},
                               {"still_px", e.est.still_px}};
-  rep.extra["plane_finding"] = {{"pair_frame", reference + pf.pair_frame}, {"candidates", cands},
+  nlohmann::json tries = nlohmann::json::array();
+  for (const auto& tr : pf.pair_frame_tries)
+    tries.push_back({{"frame", reference + tr.frame}, {"planes", tr.planes}, {"tracks_in_planes", tr.tracks_in_planes}});
+  rep.extra["plane_finding"] = {{"pair_frame", reference + pf.pair_frame}, {"pair_frames_tried", tries}, {"candidates", cands},
                                 {"manual", !e.est.finder.rois.empty()}};
   rep.extra["stage_seconds"] = {{"plane_finding", r.seconds.plane_finding}, {"start", r.seconds.start},
                                 {"filter", r.seconds.filter}, {"refinement", r.seconds.refinement}};

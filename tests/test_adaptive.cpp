@@ -15,6 +15,7 @@
 //    carry the pose of the frame before them;
 //  - a sequence in which nothing moves says so;
 //  - tracks that run out before the last frame end the estimate there, with a result.
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -276,6 +277,42 @@ TEST(Adaptive, APlaneWhoseTracksDieBeforeThePairFrameIsStillFound) {
               pf.numPlanes(), clean.numPlanes(), pf.pair_frame, best, members);
   EXPECT_EQ(pf.numPlanes(), clean.numPlanes());
   EXPECT_GE(best, members * 7 / 10);
+}
+
+// Issue 14 item 2: the pair frame is chosen where the planes show, not by the share of live
+// tracks. A motion that turns back (box-orbit's first 60 frames, then the same frames backwards)
+// ends where it started: the last frame with half of the tracks alive is near the end, where no
+// parallax is left; the planes are where the motion is largest, in the middle.
+TEST(Adaptive, AMotionThatTurnsBackFindsItsPlanesWhereTheParallaxIs) {
+  const render::Regime* r = render::builtinRegimeSuite().find("box-orbit");
+  ASSERT_NE(r, nullptr);
+  render::RenderOptions ro = r->options;
+  const int M = 60;
+  ro.frames = M + 1;
+  const test::RegimeTracks rt = test::regimeTracks(ro, 0.2, 4);
+  const vision::PlaneFinding forward = vision::findPlanes(rt.tracks);
+  ASSERT_GE(forward.numPlanes(), 3);
+  // Frames 0..M, then M-1..0 again: a track alive at frame M continues backwards.
+  Tracks t = rt.tracks;
+  std::vector<char> at_end(t.idBound(), 0);
+  for (const TrackPoint& p : t.frames[M]) at_end[p.id] = 1;
+  for (int i = 1; i <= M; ++i) {
+    std::vector<TrackPoint> f;
+    for (const TrackPoint& p : rt.tracks.frames[M - i])
+      if (at_end[p.id]) f.push_back(p);
+    t.frames.push_back(f);
+  }
+  const vision::PlaneFinding pf = vision::findPlanes(t);
+  std::string tried;
+  for (const auto& tr : pf.pair_frame_tries) tried += fmt::format(" {}: {}/{}", tr.frame, tr.planes, tr.tracks_in_planes);
+  std::printf("there and back: pair frame %d, %d planes (forward only: pair frame %d, %d planes); tried%s\n", pf.pair_frame,
+              pf.numPlanes(), forward.pair_frame, forward.numPlanes(), tried.c_str());
+  ASSERT_FALSE(pf.pair_frame_tries.empty());
+  // The share-of-live-tracks frame (the first tried) finds fewer planes than the turn does.
+  EXPECT_LT(pf.pair_frame_tries.front().planes, forward.numPlanes());
+  EXPECT_EQ(pf.numPlanes(), forward.numPlanes());
+  EXPECT_GT(pf.pair_frame, M / 2);
+  EXPECT_LT(pf.pair_frame, M + M / 2);
 }
 
 TEST(Adaptive, TracksRunningOutEndTheEstimateWithAResult) {

@@ -237,7 +237,11 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
                                    cands.empty() ? "none" : cands));
   }
   {
-    std::string line = fmt::format("planes: {} accepted (pair frame {}):", pf.numPlanes(), tracks.frameNumber(pf.pair_frame));
+    std::string tried;
+    for (const auto& tr : pf.pair_frame_tries)
+      tried += fmt::format("{}{}: {}/{}", tried.empty() ? "" : ", ", tracks.frameNumber(tr.frame), tr.planes, tr.tracks_in_planes);
+    std::string line = fmt::format("planes: {} accepted (pair frame {}; planes/tracks at the frames tried: {}):",
+                                   pf.numPlanes(), tracks.frameNumber(pf.pair_frame), tried.empty() ? "none" : tried);
     for (const auto& c : pf.candidates)
       line += fmt::format(" [{} {} tracks, motion {:.1f} px{}]", vision::toString(c.verdict), c.members.size(),
                           c.median_motion_px,
@@ -313,6 +317,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     fillStill(&r.online, nullptr, kept, input);
     coverIds(&r.planes.labels, input, from_motion);
     r.planes.pair_frame = kept[static_cast<size_t>(r.planes.pair_frame)] - still;  // from the reference frame
+    for (auto& tr : r.planes.pair_frame_tries) tr.frame = kept[static_cast<size_t>(tr.frame)] - still;
     if (r.refined.ok) {
       fillStill(&r.refined.state, &r.refined.cov_motion, kept, input);
       for (int& k : r.refined.undetermined_frames) k = kept[static_cast<size_t>(k)];

@@ -265,6 +265,9 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
       if (static_cast<int>(c.members.size()) < o.min_plane_tracks) c.verdict = PlaneVerdict::TooFew;
     }
   } else {
+    // The whole search at one pair frame: the candidates with their verdicts.
+    auto searchAt = [&](const int pair) {
+    std::vector<FoundPlane> cands;
     // Sequential RANSAC at (reference, pair_k) over the reference tracks `remaining` alive there.
     cv::theRNG().state = o.seed;
     auto sequentialRansac = [&](std::vector<int> remaining, int pair_k) {
@@ -370,6 +373,77 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
       c.same_motion_fraction = sameMotionFraction(cands[main_plane].H[cp], a, b, o.motion_px, o.seed + 17u * j);
       if (c.same_motion_fraction >= 0 && c.same_motion_fraction < o.same_motion_fraction)
         c.verdict = PlaneVerdict::OtherMotion;
+    }
+    return cands;
+    };
+    // The pair frame is chosen by what the data show there (issue 14 item 2): the search runs at
+    // several candidate frames, and a frame where more planes are accepted (each verified on
+    // every frame and moving with the main plane, at most max_planes) wins over the
+    // share-of-live-tracks frame above; among such frames, the one whose planes hold the most
+    // reference tracks, then the earliest. The candidates: that frame, the last frames where
+    // given shares of the reference tracks are alive (less parallax, more tracks; more parallax,
+    // fewer), and the frame where the moving tracks have moved most (a motion that turns back
+    // has its parallax in the middle, not at the end). On a tie in planes the share frame stays:
+    // it has the most parallax while half of the tracks live, and earlier frames always hold
+    // more tracks, not better planes (docs/estimate.md section 1).
+    std::vector<int> tries{pair};
+    for (const double share : {0.85, 0.7, 0.35, 0.2}) {
+      int k_share = -1;
+      for (int k = 1; k < F; ++k) {
+        int alive = 0;
+        for (int id : ref_ids) alive += tracks.find(k, id) != nullptr;
+        if (alive >= std::max(share * n0, 2.0 * o.min_plane_tracks)) k_share = k;
+      }
+      if (k_share > 0) tries.push_back(k_share);
+    }
+    {
+      const std::vector<int>& who = movers.empty() ? ref_ids : movers;
+      int k_motion = -1;
+      double best_motion = 0.0;
+      std::vector<double> d;
+      for (int k = 1; k < F; ++k) {
+        d.clear();
+        for (int id : who)
+          if (const TrackPoint* pk = tracks.find(k, id)) d.push_back((pk->px - tracks.find(0, id)->px).norm());
+        if (static_cast<int>(d.size()) < 2 * o.min_plane_tracks) continue;
+        std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
+        if (d[d.size() / 2] > best_motion) {
+          best_motion = d[d.size() / 2];
+          k_motion = k;
+        }
+      }
+      if (k_motion > 0) tries.push_back(k_motion);
+    }
+    std::sort(tries.begin() + 1, tries.end());
+    tries.erase(std::unique(tries.begin() + 1, tries.end()), tries.end());
+    // (planes, tracks in them) of a search: its accepted planes, at most max_planes, largest first.
+    auto score = [&](const std::vector<FoundPlane>& cs) {
+      std::vector<size_t> sizes;
+      for (const auto& c : cs)
+        if (c.verdict == PlaneVerdict::Accepted) sizes.push_back(c.members.size());
+      std::sort(sizes.rbegin(), sizes.rend());
+      if (static_cast<int>(sizes.size()) > o.max_planes) sizes.resize(static_cast<size_t>(o.max_planes));
+      size_t total = 0;
+      for (size_t n : sizes) total += n;
+      return PlaneFinding::PairTry{-1, static_cast<int>(sizes.size()), static_cast<int>(total)};
+    };
+    cands = searchAt(pair);
+    PlaneFinding::PairTry best = score(cands);
+    best.frame = pair;
+    res.pair_frame_tries.push_back(best);
+    bool from_share = true;
+    for (size_t t = 1; t < tries.size(); ++t) {
+      if (tries[t] == pair) continue;
+      std::vector<FoundPlane> cs = searchAt(tries[t]);
+      PlaneFinding::PairTry s = score(cs);
+      s.frame = tries[t];
+      res.pair_frame_tries.push_back(s);
+      if (s.planes > best.planes || (!from_share && s.planes == best.planes && s.tracks_in_planes > best.tracks_in_planes)) {
+        best = s;
+        cands = std::move(cs);
+        res.pair_frame = tries[t];
+        from_share = false;
+      }
     }
   }
   // Accepted planes, largest first, at most max_planes.

@@ -62,6 +62,14 @@ struct PlaneFinding {
   std::vector<int> labels;
   std::vector<FoundPlane> candidates;  ///< every candidate plane, accepted and rejected
   int pair_frame = -1;                 ///< frame index of the RANSAC pair (reference, pair_frame)
+  /// The pair frames tried (issue 14 item 2) and the tracks their accepted planes held; the one
+  /// holding most is pair_frame (the first entry is the share-of-live-tracks frame). Empty with ROIs.
+  struct PairTry {
+    int frame = -1;
+    int planes = 0;            ///< accepted planes (at most max_planes)
+    int tracks_in_planes = 0;  ///< their reference tracks
+  };
+  std::vector<PairTry> pair_frame_tries;
   int numPlanes() const;
   int count(int label) const;
 };
