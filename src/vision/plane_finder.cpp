@@ -377,45 +377,45 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
     return cands;
     };
     // The pair frame is chosen by what the data show there (issue 14 item 2): the search runs at
-    // several candidate frames, and a frame where more planes are accepted (each verified on
-    // every frame and moving with the main plane, at most max_planes) wins over the
-    // share-of-live-tracks frame above; among such frames, the one whose planes hold the most
-    // reference tracks, then the earliest. The candidates: that frame, the last frames where
-    // given shares of the reference tracks are alive (less parallax, more tracks; more parallax,
-    // fewer), and the frame where the moving tracks have moved most (a motion that turns back
-    // has its parallax in the middle, not at the end). On a tie in planes the share frame stays:
-    // it has the most parallax while half of the tracks live, and earlier frames always hold
-    // more tracks, not better planes (docs/estimate.md section 1).
+    // the share-of-live-tracks frame above and at frames chosen by the moving reference tracks'
+    // image motion: the frame where their median displacement from the reference frame is
+    // largest (a motion that turns back has its parallax in the middle, not at the end), then the
+    // first frames where it reaches three quarters, half and a quarter of that (an object before
+    // a still background: the background's tracks outlive the object's, and its planes show
+    // between too little parallax and too few tracks). A frame wins only with more accepted
+    // planes (each verified on every frame and moving with the main plane, at most max_planes)
+    // than every frame before it in that order, which is one of decreasing parallax: on a tie
+    // the frame with more image motion stays (the start's homographies are taken at the pair
+    // frame too). docs/estimate.md section 1.
     std::vector<int> tries{pair};
-    for (const double share : {0.85, 0.7, 0.35, 0.2}) {
-      int k_share = -1;
-      for (int k = 1; k < F; ++k) {
-        int alive = 0;
-        for (int id : ref_ids) alive += tracks.find(k, id) != nullptr;
-        if (alive >= std::max(share * n0, 2.0 * o.min_plane_tracks)) k_share = k;
-      }
-      if (k_share > 0) tries.push_back(k_share);
-    }
     {
+      // The moving reference tracks' median displacement from the reference frame, per frame
+      // (NaN: fewer than two planes' worth alive): the frame where it is largest, and the first
+      // frames where it reaches three quarters, half and a quarter of that.
       const std::vector<int>& who = movers.empty() ? ref_ids : movers;
-      int k_motion = -1;
-      double best_motion = 0.0;
-      std::vector<double> d;
+      std::vector<double> motion(F, NAN), d;
+      double most = 0.0;
+      int k_most = -1;
       for (int k = 1; k < F; ++k) {
         d.clear();
         for (int id : who)
           if (const TrackPoint* pk = tracks.find(k, id)) d.push_back((pk->px - tracks.find(0, id)->px).norm());
         if (static_cast<int>(d.size()) < 2 * o.min_plane_tracks) continue;
         std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
-        if (d[d.size() / 2] > best_motion) {
-          best_motion = d[d.size() / 2];
-          k_motion = k;
+        motion[k] = d[d.size() / 2];
+        if (motion[k] > most) {
+          most = motion[k];
+          k_most = k;
         }
       }
-      if (k_motion > 0) tries.push_back(k_motion);
+      if (k_most > 0) tries.push_back(k_most);
+      for (const double part : {0.75, 0.5, 0.25})
+        for (int k = 1; k < k_most; ++k)
+          if (motion[k] >= part * most) {
+            tries.push_back(k);
+            break;
+          }
     }
-    std::sort(tries.begin() + 1, tries.end());
-    tries.erase(std::unique(tries.begin() + 1, tries.end()), tries.end());
     // (planes, tracks in them) of a search: its accepted planes, at most max_planes, largest first.
     auto score = [&](const std::vector<FoundPlane>& cs) {
       std::vector<size_t> sizes;
@@ -431,18 +431,18 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
     PlaneFinding::PairTry best = score(cands);
     best.frame = pair;
     res.pair_frame_tries.push_back(best);
-    bool from_share = true;
-    for (size_t t = 1; t < tries.size(); ++t) {
-      if (tries[t] == pair) continue;
+    // No frame can win once max_planes are accepted: the rest are not tried.
+    for (size_t t = 1; t < tries.size() && best.planes < o.max_planes; ++t) {
+      if (std::find(tries.begin(), tries.begin() + static_cast<long>(t), tries[t]) != tries.begin() + static_cast<long>(t))
+        continue;  // tried already
       std::vector<FoundPlane> cs = searchAt(tries[t]);
       PlaneFinding::PairTry s = score(cs);
       s.frame = tries[t];
       res.pair_frame_tries.push_back(s);
-      if (s.planes > best.planes || (!from_share && s.planes == best.planes && s.tracks_in_planes > best.tracks_in_planes)) {
+      if (s.planes > best.planes) {
         best = s;
         cands = std::move(cs);
         res.pair_frame = tries[t];
-        from_share = false;
       }
     }
   }

@@ -62,8 +62,10 @@ struct PlaneFinding {
   std::vector<int> labels;
   std::vector<FoundPlane> candidates;  ///< every candidate plane, accepted and rejected
   int pair_frame = -1;                 ///< frame index of the RANSAC pair (reference, pair_frame)
-  /// The pair frames tried (issue 14 item 2) and the tracks their accepted planes held; the one
-  /// holding most is pair_frame (the first entry is the share-of-live-tracks frame). Empty with ROIs.
+  /// The pair frames tried, in order (issue 14 item 2): the share-of-live-tracks frame, then the
+  /// frames of the moving tracks' largest median motion and of 3/4, 1/2, 1/4 of it. pair_frame is
+  /// the first with the most accepted planes; once max_planes are accepted, no further frame is
+  /// tried. Empty with ROIs.
   struct PairTry {
     int frame = -1;
     int planes = 0;            ///< accepted planes (at most max_planes)
