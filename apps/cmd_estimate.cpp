@@ -146,7 +146,13 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--max-planes", e->est.finder.max_planes, "planes kept at most")->capture_default_str();
   a->add_option("--min-plane-tracks", e->est.finder.min_plane_tracks, "reference tracks a plane needs")
       ->capture_default_str();
-  a->add_option("--ransac-px", e->est.finder.ransac_px, "homography RANSAC threshold (px)")->capture_default_str();
+  a->add_option("--ransac-px", e->est.finder.ransac_px,
+                "homography RANSAC threshold (px; at least this, widened to what the tracking noise needs)")
+      ->capture_default_str();
+  a->add_option("--finder-noise-px", e->est.finder.noise_px,
+                "tracking noise per axis (px) that widens the plane finder's pixel tolerances (< 0: measured from the "
+                "tracks' second differences; 0: the tolerances as given)")
+      ->capture_default_str();
   a->add_option("--plane-roi", e->plane_rois,
                 "manual planes: one polygon per plane in first-frame px, x,y,x,y,...;x,y,... (skips RANSAC)");
   a->add_flag("!--keep-static", e->est.finder.reject_static, "keep planes that do not move in the image");
@@ -384,7 +390,12 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
   nlohmann::json tries = nlohmann::json::array();
   for (const auto& tr : pf.pair_frame_tries)
     tries.push_back({{"frame", reference + tr.frame}, {"planes", tr.planes}, {"tracks_in_planes", tr.tracks_in_planes}});
+  const vision::PlaneTolerances& tol = pf.tolerances;
   rep.extra["plane_finding"] = {{"pair_frame", reference + pf.pair_frame}, {"pair_frames_tried", tries}, {"candidates", cands},
+                                {"tracking_noise_px", tol.noise_px > 0 ? nlohmann::json(tol.noise_px) : nlohmann::json(nullptr)},
+                                {"tolerances_px", {{"ransac", tol.ransac_px}, {"stray", tol.verify_px}, {"static", tol.static_px},
+                                                   {"same_motion", tol.motion_px}, {"still", tol.still_px}}},
+                                {"tolerances_widened", pf.widened},
                                 {"manual", !e.est.finder.rois.empty()}};
   rep.extra["stage_seconds"] = {{"plane_finding", r.seconds.plane_finding}, {"start", r.seconds.start},
                                 {"filter", r.seconds.filter}, {"refinement", r.seconds.refinement}};

@@ -360,6 +360,58 @@ TEST(Adaptive, PlanesBeforeAStillBackgroundAreSearchedWhereTheyHaveMoved) {
   EXPECT_EQ(pf.numPlanes(), whole.numPlanes());
 }
 
+// Issue 14 item 5: the plane finder's pixel tolerances follow the measured tracking noise. Its
+// options (RANSAC 2 px, stray 3 px) fit trackers with a few tenths of a pixel of noise; with 1 px
+// per axis (white), a member's residual exceeds 3 px somewhere in 150 frames almost surely, and
+// with them no plane is found. The noise is measured from the tracks' second differences
+// (trackNoisePx) within 5 % of the truth; the search with the tolerances it needs finds the
+// planes, and the whole estimate then runs. With 0.2 px the options' tolerances are kept.
+TEST(Adaptive, PlaneFindingTolerancesFollowTheMeasuredTrackingNoise) {
+  for (const char* name : {"box-orbit", "corner-orbit"}) {
+    const render::Regime* r = render::builtinRegimeSuite().find(name);
+    ASSERT_NE(r, nullptr);
+    for (const double noise : {0.2, 1.0, 1.5}) {
+      SCOPED_TRACE(fmt::format("{} noise {}", name, noise));
+      const test::RegimeTracks rt = test::regimeTracks(r->options, noise, 4);
+      const double measured = vision::trackNoisePx(rt.tracks);
+      const vision::PlaneFinding pf = vision::findPlanes(rt.tracks);
+      vision::PlaneFinderOptions fixed;
+      fixed.noise_px = 0.0;
+      const vision::PlaneFinding pf_fixed = vision::findPlanes(rt.tracks, fixed);
+      int labelled = 0, ids = 0;
+      for (const TrackPoint& p : rt.tracks.frames[0]) {
+        ++ids;
+        labelled += pf.labels[p.id] >= 0;
+      }
+      std::printf("%s, %.1f px: measured %.3f px; RANSAC %.2f, stray %.2f, static %.2f px: %d planes, %d of %d reference tracks "
+                  "on them; with the floors alone %d planes\n",
+                  name, noise, measured, pf.tolerances.ransac_px, pf.tolerances.verify_px, pf.tolerances.static_px, pf.numPlanes(),
+                  labelled, ids, pf_fixed.numPlanes());
+      EXPECT_NEAR(measured / noise, 1.0, 0.05);
+      EXPECT_EQ(pf.numPlanes(), 3);
+      EXPECT_GE(labelled, ids * 3 / 4);
+      if (noise <= 0.2) {
+        EXPECT_EQ(pf.tolerances.ransac_px, fixed.ransac_px);  // clean tracks: the floors hold
+        EXPECT_EQ(pf.tolerances.verify_px, fixed.verify_px);
+        EXPECT_EQ(pf_fixed.numPlanes(), 3);
+      }
+      EXPECT_EQ(pf.widened, noise >= 1.0);
+      if (noise >= 1.0) {
+        EXPECT_LT(pf_fixed.numPlanes(), 3);  // the floors alone lose planes (box-orbit: all)
+      }
+      if (noise == 1.0 && std::string(name) == "box-orbit") {
+        const EstimateResult e = estimate(rt.tracks, EstimateOptions{});
+        ASSERT_TRUE(e.refined.ok) << e.refined.message;
+        const double f = e.main().scale_px / e.main().frames.back().beta;
+        std::printf("  estimate: %zu frames, refined focal %.1f px (truth %.1f), residual sd %.3f px\n", e.main().frames.size(), f,
+                    *rt.truth.focal_px, e.refined.sigma_px);
+        EXPECT_EQ(e.main().frames.size(), rt.tracks.frames.size());
+        EXPECT_NEAR(f / *rt.truth.focal_px, 1.0, 0.02);
+      }
+    }
+  }
+}
+
 TEST(Adaptive, TracksRunningOutEndTheEstimateWithAResult) {
   const render::Regime* r = render::builtinRegimeSuite().find("box-orbit");
   ASSERT_NE(r, nullptr);

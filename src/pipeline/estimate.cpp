@@ -211,23 +211,25 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   const vision::PlaneFinding& pf = r.planes;
   if (pf.numPlanes() == 0) {
     // Nothing moved at all: every candidate is static, and fewer reference tracks than a plane
-    // needs ever move more than static_px from where they were in frame 0.
+    // needs ever move more than the noise does (PlaneTolerances::still_px, at least static_px)
+    // from where they were in frame 0.
+    const double still_px = pf.tolerances.still_px;
     int moving = 0, total = 0;
     for (const TrackPoint& p0 : tracks.frames.empty() ? std::vector<TrackPoint>{} : tracks.frames[0]) {
       double m = 0;
       for (int k = 1; k < tracks.numFrames(); ++k)
         if (const TrackPoint* pk = tracks.find(k, p0.id)) m = std::max(m, (pk->px - p0.px).norm());
-      moving += m > o.finder.static_px;
+      moving += m > still_px;
       ++total;
     }
     const bool all_static = !pf.candidates.empty() &&
                             std::all_of(pf.candidates.begin(), pf.candidates.end(),
                                         [](const vision::FoundPlane& c) { return c.verdict == vision::PlaneVerdict::Static; });
     if (all_static && moving < o.finder.min_plane_tracks)
-      throw NoPlaneFound(fmt::format("nothing moves: {} of the {} tracks of frame {} ever move more than {:.0f} px in {} frames "
+      throw NoPlaneFound(fmt::format("nothing moves: {} of the {} tracks of frame {} ever move more than {:.1f} px in {} frames "
                                      "(a still camera before a still scene determines neither motion nor structure); use a "
                                      "stretch where the camera or the object moves (--first, --last)",
-                                     moving, total, tracks.first_frame, o.finder.static_px, tracks.numFrames()));
+                                     moving, total, tracks.first_frame, still_px, tracks.numFrames()));
     std::string cands;
     for (const auto& c : pf.candidates)
       cands += fmt::format("{}{} {} tracks", cands.empty() ? "" : ", ", vision::toString(c.verdict), c.members.size());
@@ -240,8 +242,13 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     std::string tried;
     for (const auto& tr : pf.pair_frame_tries)
       tried += fmt::format("{}{}: {}/{}", tried.empty() ? "" : ", ", tracks.frameNumber(tr.frame), tr.planes, tr.tracks_in_planes);
-    std::string line = fmt::format("planes: {} accepted (pair frame {}; planes/tracks at the frames tried: {}):",
-                                   pf.numPlanes(), tracks.frameNumber(pf.pair_frame), tried.empty() ? "none" : tried);
+    const vision::PlaneTolerances& tol = pf.tolerances;
+    std::string line = fmt::format("planes: {} accepted (pair frame {}; planes/tracks at the frames tried: {}; tracking noise {} px: "
+                                   "tolerances RANSAC {:.2f}, stray {:.2f}, static {:.2f} px{}):",
+                                   pf.numPlanes(), tracks.frameNumber(pf.pair_frame), tried.empty() ? "none" : tried,
+                                   tol.noise_px > 0 ? fmt::format("{:.3f}", tol.noise_px) : std::string("not measured"),
+                                   tol.ransac_px, tol.verify_px, tol.static_px,
+                                   pf.widened ? ", widened: the options' found fewer planes or half the tracks" : "");
     for (const auto& c : pf.candidates)
       line += fmt::format(" [{} {} tracks, motion {:.1f} px{}]", vision::toString(c.verdict), c.members.size(),
                           c.median_motion_px,

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numeric>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
@@ -113,17 +114,125 @@ double sameMotionFraction(const cv::Matx33d& H1, const std::vector<cv::Point2d>&
 
 }  // namespace
 
-PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
+double trackNoisePx(const Tracks& tracks) {
+  // Second differences a = x(k+1) - 2 x(k) + x(k-1) of every track seen in three consecutive
+  // frames: white tracking noise of sd s per axis gives them the variance 6 s^2, while a smooth
+  // motion gives them little. What a change of the camera's rotation adds (jitter, a shake) is
+  // the small-rotation flow field, quadratic in the image position (u = xy w_x / f - (f + x^2 /
+  // f) w_y + y w_z, and v alike), so each frame's least-squares fit of a quadratic in (x, y) per
+  // axis is removed first; the rest's per-axis robust sd (1.4826 x the median absolute value) /
+  // sqrt 6 is the noise. Tracking error that drifts slowly is not white and does not show here.
+  constexpr int kTerms = 6;
+  using Basis = Eigen::Matrix<double, kTerms, 1>;
+  const int F = tracks.numFrames();
+  const double scale = std::max(1.0, 0.5 * std::max(tracks.image.width, tracks.image.height));
+  const Eigen::Vector2d centre(tracks.image.cx, tracks.image.cy);
+  auto basis = [&](const Eigen::Vector2d& x) {
+    const Eigen::Vector2d u = (x - centre) / scale;
+    Basis b;
+    b << 1.0, u.x(), u.y(), u.x() * u.x(), u.x() * u.y(), u.y() * u.y();
+    return b;
+  };
+  std::vector<double> r;
+  std::vector<Eigen::Vector2d> pos, acc;
+  for (int k = 1; k + 1 < F; ++k) {
+    pos.clear();
+    acc.clear();
+    for (const TrackPoint& p : tracks.frames[k]) {
+      const TrackPoint* a = tracks.find(k - 1, p.id);
+      const TrackPoint* b = tracks.find(k + 1, p.id);
+      if (!a || !b) continue;
+      pos.push_back(p.px);
+      acc.push_back(b->px - 2.0 * p.px + a->px);
+    }
+    const int n = static_cast<int>(pos.size());
+    if (n < 4 * kHomographyTestTracks) continue;  // too few to leave the noise after the fit
+    // Least squares, then once more over the tracks within 3 robust sds of the first fit (an
+    // object moving on its own before the background, a slipped track: not the frame's field).
+    std::vector<double> e_abs(static_cast<size_t>(n));
+    Eigen::Matrix<double, kTerms, 2> A = Eigen::Matrix<double, kTerms, 2>::Zero();
+    double cut = std::numeric_limits<double>::infinity();
+    bool fitted = false;
+    for (int pass = 0; pass < 2; ++pass) {
+      Eigen::Matrix<double, kTerms, kTerms> N = Eigen::Matrix<double, kTerms, kTerms>::Zero();
+      Eigen::Matrix<double, kTerms, 2> B = Eigen::Matrix<double, kTerms, 2>::Zero();
+      int used = 0;
+      for (int i = 0; i < n; ++i) {
+        if (pass > 0 && e_abs[static_cast<size_t>(i)] > cut) continue;
+        const Basis u = basis(pos[i]);
+        N += u * u.transpose();
+        B += u * acc[i].transpose();
+        ++used;
+      }
+      if (used < 4 * kHomographyTestTracks) break;
+      const Eigen::LDLT<Eigen::Matrix<double, kTerms, kTerms>> ldlt(N);
+      if (ldlt.info() != Eigen::Success) break;
+      const Eigen::Matrix<double, kTerms, 2> A1 = ldlt.solve(B);
+      if (!A1.allFinite()) break;
+      A = A1;
+      fitted = true;
+      for (int i = 0; i < n; ++i) e_abs[static_cast<size_t>(i)] = (acc[i] - A.transpose() * basis(pos[i])).norm();
+      std::vector<double> tmp = e_abs;
+      std::nth_element(tmp.begin(), tmp.begin() + n / 2, tmp.end());
+      cut = 3.0 * 1.4826 * tmp[static_cast<size_t>(n / 2)];  // |e| of 2 axes: a generous cut
+    }
+    if (!fitted) continue;
+    // The tracks within the cut of the last fit: random-walking or slipped tracks (a fifth of
+    // them read the noise 1.2x) are not the noise's measure.
+    int used = 0;
+    for (int i = 0; i < n; ++i) used += e_abs[static_cast<size_t>(i)] <= cut;
+    if (used <= kTerms) continue;
+    const double keep = std::sqrt(static_cast<double>(used) / (used - kTerms));  // the fit's own share
+    for (int i = 0; i < n; ++i) {
+      if (e_abs[static_cast<size_t>(i)] > cut) continue;
+      const Eigen::Vector2d e = acc[i] - A.transpose() * basis(pos[i]);
+      r.push_back(keep * std::abs(e.x()));
+      r.push_back(keep * std::abs(e.y()));
+    }
+  }
+  if (r.size() < 100) return -1.0;
+  std::nth_element(r.begin(), r.begin() + static_cast<long>(r.size() / 2), r.end());
+  return 1.4826 * r[r.size() / 2] / std::sqrt(6.0);
+}
+
+PlaneTolerances planeTolerances(const PlaneFinderOptions& o, double noise_px, int frames) {
+  PlaneTolerances t;
+  t.noise_px = noise_px;
+  t.ransac_px = o.ransac_px;
+  t.verify_px = o.verify_px;
+  t.static_px = o.static_px;
+  t.motion_px = o.motion_px;
+  t.still_px = o.static_px;
+  if (!(noise_px > 0)) return t;
+  // A member's residual to its plane's homography carries the noise of its reference position
+  // and of its position in the frame: sd s = sqrt 2 x noise per axis, a Rayleigh magnitude.
+  const double s = std::sqrt(2.0) * noise_px;
+  // At the pair frame (RANSAC, same-motion test): its 99.9 % quantile, s sqrt(-2 ln 0.001).
+  const double one = s * std::sqrt(-2.0 * std::log(1e-3));
+  // In every frame (the stray test; a track's own motion): the largest of `frames` residuals
+  // stays below it with probability 0.99, s sqrt(2 ln(100 frames)).
+  const double all = s * std::sqrt(2.0 * std::log(100.0 * std::max(frames, 2)));
+  t.ransac_px = std::max(o.ransac_px, one);
+  t.motion_px = std::max(o.motion_px, one);
+  t.verify_px = std::max(o.verify_px, all);
+  t.still_px = std::max(o.static_px, all);
+  // A still plane's members move by the noise alone: their median displacement's largest value
+  // over the frames stays below the median magnitude's ~2x.
+  t.static_px = std::max(o.static_px, 2.0 * s * std::sqrt(2.0 * std::log(2.0)));
+  return t;
+}
+
+namespace {
+
+/// The search with the pixel tolerances `tol` (findPlanes).
+PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, const PlaneTolerances& tol) {
   // A frame's homography tests a track when at least this many members determine it.
   constexpr int kMinSupport = kHomographyTestTracks;
-  if (o.max_planes < 1 || o.min_plane_tracks < 4 || !(o.ransac_px > 0) || !(o.verify_px > 0) ||
-      !(o.min_alive_fraction > 0 && o.min_alive_fraction <= 1))
-    throw std::invalid_argument("plane finder: options out of range");
   const int F = tracks.numFrames();
   const int ids = tracks.idBound();
   PlaneFinding res;
   res.labels.assign(ids, -1);
-  if (F < 2) return res;
+  res.tolerances = tol;
   const auto spans = trackSpans(tracks);
   for (int id = 0; id < ids; ++id)
     if (spans[id].first > 0 && spans[id].length() < o.min_new_track_frames) res.labels[id] = -2;
@@ -143,9 +252,9 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
     const TrackSpan s = spans[id];
     const TrackPoint* p0 = s.first >= 0 ? tracks.find(s.first, id) : nullptr;
     double moved = 0.0;
-    for (int k = s.first + 1; p0 && k <= s.last && moved < o.verify_px; ++k)
+    for (int k = s.first + 1; p0 && k <= s.last && moved < tol.verify_px; ++k)
       if (const TrackPoint* pk = tracks.find(k, id)) moved = std::max(moved, (pk->px - p0->px).norm());
-    moves[id] = moved >= o.verify_px;
+    moves[id] = moved >= tol.verify_px;
   }
 
   // Pair frame: the last frame where half of the reference tracks are alive, and half of those
@@ -179,7 +288,7 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
   // them are in view, else from every member: tracks that joined later extend a plane past its
   // reference tracks' lives but never outvote them.
   std::vector<char> joined(ids, 0);
-  const double ransac_px = o.ransac_px, verify_px = o.verify_px;
+  const double ransac_px = tol.ransac_px, verify_px = tol.verify_px;
   auto fitAllFrames = [&](FoundPlane* c) {
     std::vector<int> members = c->members;
     for (int round = 0; round < 2; ++round) {
@@ -244,7 +353,7 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
     // plane (a point of the still background near where the plane's homography barely moves
     // the image, e.g. the image of its rotation axis): it does not test the plane, and is not
     // a member. The same rule as for a track joining later (below).
-    if (motion >= o.static_px)
+    if (motion >= tol.static_px)
       c->members.erase(std::remove_if(c->members.begin(), c->members.end(), [&](int id) { return !moves[id]; }),
                        c->members.end());
   };
@@ -354,7 +463,7 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
     for (size_t j = 0; j < cands.size(); ++j) {
       auto& c = cands[j];
       if (c.verdict != PlaneVerdict::Accepted) continue;
-      if (o.reject_static && c.median_motion_px < o.static_px) {
+      if (o.reject_static && c.median_motion_px < tol.static_px) {
         c.verdict = PlaneVerdict::Static;
         continue;
       }
@@ -370,7 +479,7 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
           a.push_back(pt(*tracks.find(0, id)));
           b.push_back(pt(*tracks.find(cp, id)));
         }
-      c.same_motion_fraction = sameMotionFraction(cands[main_plane].H[cp], a, b, o.motion_px, o.seed + 17u * j);
+      c.same_motion_fraction = sameMotionFraction(cands[main_plane].H[cp], a, b, tol.motion_px, o.seed + 17u * j);
       if (c.same_motion_fraction >= 0 && c.same_motion_fraction < o.same_motion_fraction)
         c.verdict = PlaneVerdict::OtherMotion;
     }
@@ -526,6 +635,39 @@ PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
     }
   }
   res.candidates = std::move(cands);
+  return res;
+}
+
+}  // namespace
+
+PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& o) {
+  if (o.max_planes < 1 || o.min_plane_tracks < 4 || !(o.ransac_px > 0) || !(o.verify_px > 0) ||
+      !(o.min_alive_fraction > 0 && o.min_alive_fraction <= 1))
+    throw std::invalid_argument("plane finder: options out of range");
+  const int F = tracks.numFrames();
+  if (F < 2) {
+    PlaneFinding res;
+    res.labels.assign(tracks.idBound(), -1);
+    return res;
+  }
+  // The options' tolerances first. When the tracking noise needs wider ones (planeTolerances),
+  // the search runs with those too, and they are kept when they put more planes on the tracks,
+  // or as many planes holding at least twice the tracks: the options' then left most of the
+  // planes' tracks off them (docs/estimate.md section 1, "the pixel tolerances"). Otherwise the
+  // options' stand: a few more members at the edge of a face change the start, not the planes.
+  const double noise = o.noise_px < 0 ? trackNoisePx(tracks) : o.noise_px;
+  const PlaneTolerances wide = planeTolerances(o, noise, F);
+  PlaneTolerances floors = planeTolerances(o, 0.0, F);
+  floors.noise_px = noise;
+  PlaneFinding res = findPlanesWith(tracks, o, floors);
+  if (!(wide.ransac_px > floors.ransac_px || wide.verify_px > floors.verify_px)) return res;
+  PlaneFinding w = findPlanesWith(tracks, o, wide);
+  const int on = static_cast<int>(res.labels.size()) - res.count(-1) - res.count(-2);
+  const int on_wide = static_cast<int>(w.labels.size()) - w.count(-1) - w.count(-2);
+  if (w.numPlanes() > res.numPlanes() || (w.numPlanes() == res.numPlanes() && on_wide >= 2 * on && on_wide > 0)) {
+    w.widened = true;
+    return w;
+  }
   return res;
 }
 

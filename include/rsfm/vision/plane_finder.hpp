@@ -25,6 +25,9 @@ inline constexpr int kHomographyTestTracks = 8;
 struct PlaneFinderOptions {
   int max_planes = 3;                ///< planes kept at most
   int min_plane_tracks = kHomographyTestTracks;  ///< a plane needs at least this many reference tracks
+  // The four pixel tolerances below are used as given unless the tracking noise needs wider
+  // ones and the search with those finds more planes, or twice the tracks on as many
+  // (planeTolerances, findPlanes; docs/estimate.md section 1).
   double ransac_px = 2.0;            ///< homography inlier threshold at the pair frame (px)
   double verify_px = 3.0;            ///< a member may stray at most this far from its plane's
                                      ///< least-squares homography in any frame (px); a later
@@ -32,6 +35,9 @@ struct PlaneFinderOptions {
   double min_alive_fraction = 0.5;   ///< the pair frame: last frame with this fraction alive
   double static_px = 2.0;            ///< planes whose members move less than this (median, px) are static
   double motion_px = 2.0;            ///< plane+parallax epipolar distance limit for "same motion" (px)
+  /// Tracking noise per axis (px) that may widen the tolerances; < 0: measured from the tracks
+  /// (trackNoisePx); 0: the tolerances as given.
+  double noise_px = -1.0;
   double same_motion_fraction = 0.6; ///< fraction of a plane's parallax tracks that must agree
   int min_new_track_frames = 5;      ///< later tracks shorter than this are left out
   bool reject_static = true;         ///< reject planes that do not move in the image
@@ -40,6 +46,26 @@ struct PlaneFinderOptions {
   std::vector<std::vector<cv::Point2f>> rois;
   unsigned seed = 1;                 ///< RANSAC seed (cv::theRNG)
 };
+
+/// The pixel tolerances a search used: the options' floors widened by the tracking noise.
+struct PlaneTolerances {
+  double noise_px = -1;  ///< tracking noise per axis (px) they were derived from (<= 0: none)
+  double ransac_px = 0, verify_px = 0, static_px = 0, motion_px = 0;
+  /// A track whose largest displacement from its first position stays below this moved by the
+  /// noise alone: static_px's option, or the noise's per-frame quantile (as verify_px's) if larger.
+  double still_px = 0;
+};
+
+/// White tracking noise per axis (px), from the tracks' second differences over three consecutive
+/// frames after each frame's affine fit is removed (docs/estimate.md section 1); -1 when fewer
+/// than 100 residuals. Slow drift of a track does not show in it.
+double trackNoisePx(const Tracks& tracks);
+
+/// The tolerances for tracks with `noise_px` per axis over `frames` frames: each option's value,
+/// or the noise's quantile if larger (a member's residual is a Rayleigh magnitude of sd sqrt 2 x
+/// noise: its 99.9 % quantile at the pair frame, the largest of `frames` with probability 0.99
+/// for the per-frame tests, twice the median for "static").
+PlaneTolerances planeTolerances(const PlaneFinderOptions& options, double noise_px, int frames);
 
 /// Why a candidate plane was kept or not.
 enum class PlaneVerdict { Accepted, Static, OtherMotion, TooFew };
@@ -62,6 +88,9 @@ struct PlaneFinding {
   std::vector<int> labels;
   std::vector<FoundPlane> candidates;  ///< every candidate plane, accepted and rejected
   int pair_frame = -1;                 ///< frame index of the RANSAC pair (reference, pair_frame)
+  PlaneTolerances tolerances;          ///< the pixel tolerances used (noise_px: the measured noise)
+  bool widened = false;                ///< the noise's wider tolerances were used: with them more
+                                       ///< planes, or twice the tracks on as many, were found
   /// The pair frames tried, in order (issue 14 item 2): the share-of-live-tracks frame, then the
   /// frames of the moving tracks' largest median motion and of 3/4, 1/2, 1/4 of it. pair_frame is
   /// the first with the most accepted planes; once max_planes are accepted, no further frame is
