@@ -112,7 +112,9 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--focal-px", f.focal_px, "known focal length in px (0: estimate it)")->capture_default_str();
   a->add_option("--focal0-px", f.focal0_px, "initial focal guess in px (0: from the homographies, else max(width, height))")
       ->capture_default_str();
-  a->add_option("--sigma-px", f.sigma_px, "tracking noise sd (px)")->capture_default_str();
+  a->add_option("--sigma-px", f.sigma_px,
+                "the filter's measurement noise sd per axis (px): a floor, raised to the tracking noise (--tracking-noise-px)")
+      ->capture_default_str();
   // The motion's process noise comes from the data and adapts online (TrackFilterOptions::
   // q_from_data); giving any of these fixes it at the values given (defaults as shown).
   a->add_option_function<double>(
@@ -149,9 +151,9 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--ransac-px", e->est.finder.ransac_px,
                 "homography RANSAC threshold (px; at least this, widened to what the tracking noise needs)")
       ->capture_default_str();
-  a->add_option("--finder-noise-px", e->est.finder.noise_px,
-                "tracking noise per axis (px) that widens the plane finder's pixel tolerances (< 0: measured from the "
-                "tracks' second differences; 0: the tolerances as given)")
+  a->add_option("--tracking-noise-px", e->est.finder.noise_px,
+                "tracking noise per axis (px): it widens the plane finder's pixel tolerances and raises the filter's "
+                "measurement sd above --sigma-px (< 0: measured from the tracks' second differences; 0: neither)")
       ->capture_default_str();
   a->add_option("--plane-roi", e->plane_rois,
                 "manual planes: one polygon per plane in first-frame px, x,y,x,y,...;x,y,... (skips RANSAC)");
@@ -397,6 +399,10 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
                                                    {"same_motion", tol.motion_px}, {"still", tol.still_px}}},
                                 {"tolerances_widened", pf.widened},
                                 {"manual", !e.est.finder.rois.empty()}};
+  // The filter's measurement noise: the --sigma-px floor raised to the tracking noise (estimate()).
+  rep.extra["measurement_noise"] = {{"sigma_px", r.filter_used.sigma_px},
+                                    {"floor_px", e.est.filter.sigma_px},
+                                    {"from_tracking_noise", r.filter_used.sigma_px > e.est.filter.sigma_px}};
   rep.extra["stage_seconds"] = {{"plane_finding", r.seconds.plane_finding}, {"start", r.seconds.start},
                                 {"filter", r.seconds.filter}, {"refinement", r.seconds.refinement}};
 }

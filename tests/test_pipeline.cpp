@@ -113,6 +113,13 @@ TEST(Pipeline, LibraryCallGivesTheCliNumbers) {
     // It adapted: the sd used changed over the frames (fixed noise gives min == max).
     EXPECT_LT(pn["omega_sd_deg"]["min"].get<double>(), pn["omega_sd_deg"]["max"].get<double>()) << pn.dump();
     EXPECT_LE(sum, cli.summary["seconds"].get<double>());
+    // The filter's measurement noise: the --sigma-px floor or the measured tracking noise, if
+    // larger; these tracks have 0.5 px per axis, the floor's value.
+    const auto& mn = cli.summary["measurement_noise"];
+    EXPECT_EQ(mn["sigma_px"].get<double>(), lib.filter_used.sigma_px) << mn.dump();
+    EXPECT_NEAR(mn["sigma_px"].get<double>(), 0.5, 0.05) << mn.dump();
+    EXPECT_EQ(mn["floor_px"].get<double>(), TrackFilterOptions{}.sigma_px);
+    EXPECT_EQ(mn["from_tracking_noise"].get<bool>(), lib.filter_used.sigma_px > TrackFilterOptions{}.sigma_px);
   }
   {
     // Options that change the start-dependent defaults and the filter.
@@ -123,12 +130,17 @@ TEST(Pipeline, LibraryCallGivesTheCliNumbers) {
     o.filter.filter.iterations = 2;
     o.filter.filter.q_motion[3] = o.filter.filter.q_motion[4] = o.filter.filter.q_motion[5] = 4e-4;
     o.filter.q_from_data = false;  // what --q-omega means: fixed process noise
+    o.finder.noise_px = 0.8;       // a given tracking noise: the filter's sd is raised to it
     o.refine.enabled = false;
     const EstimateResult lib = estimate(tracks, o);
     EXPECT_FALSE(lib.refined.ok);
-    const Cli cli =
-        runCli(file, dir / "options", "--normal-sd0 0.3 --beta-sd0 0.2 --passes 3 --iterations 2 --q-omega 4e-4 --refine none");
+    EXPECT_EQ(lib.filter_used.sigma_px, 0.8);
+    const Cli cli = runCli(file, dir / "options",
+                           "--normal-sd0 0.3 --beta-sd0 0.2 --passes 3 --iterations 2 --q-omega 4e-4 --tracking-noise-px 0.8 "
+                           "--refine none");
     expectSame(lib, cli);
+    EXPECT_EQ(cli.summary["measurement_noise"]["sigma_px"].get<double>(), 0.8);
+    EXPECT_TRUE(cli.summary["measurement_noise"]["from_tracking_noise"].get<bool>());
     // --q-omega fixes the process noise: not from the data, not adapted, at the value given.
     EXPECT_FALSE(cli.summary["process_noise"]["adapted"].get<bool>());
     EXPECT_FALSE(cli.summary["process_noise"]["from_data"].get<bool>());

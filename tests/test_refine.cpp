@@ -415,7 +415,10 @@ TEST(Refine, AnUndeterminedFocalLengthGetsItsProfileInterval) {
   // beyond the 5 % limit, and the optimum the refinement reaches can be a local one (seed 32:
   // 152 px, truth 512 px; its linear interval 154-429 px excluded the truth). The reported
   // interval (docs/estimate.md, section 4: widened by the focal length's profile, the whole
-  // range when the profile finds a better fit) holds the truth on every seed.
+  // range when the profile finds a better fit) holds the truth on every seed. Seed 31's optimum
+  // (with the filter's measurement sd at the measured 1.01 px) is at beta -0.042, a focal length
+  // of -6052 px: not determined, whatever its relative sd reads (it read "determined" before
+  // the refinement checked beta's sign).
   int local = 0;
   for (unsigned seed : {31u, 32u, 33u}) {
     Synthetic s = makeTracks(seed, 1.0, Eigen::Vector2d::Zero(), 0.0, 0.0, 20, 0.1);

@@ -469,11 +469,14 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   // Determinacy (rsfm/determinacy.hpp).
   const double beta = st.beta, f = s / beta;
   const double focal_sd = known_focal ? 0.0 : b.beta_estimable ? s * std::sqrt(std::max(0.0, b.var_beta)) / (beta * beta) : INFINITY;
-  r.focal_determined = known_focal || (b.beta_estimable && focal_sd / f <= kDeterminedFocalRelSd);
+  // An optimum with beta <= 0 (a focal length through infinity to the negative side: a camera
+  // that only turns, with noise) determines nothing, however its relative sd reads.
+  r.focal_determined = known_focal || (b.beta_estimable && beta > 0 && focal_sd / f <= kDeterminedFocalRelSd);
   if (!r.focal_determined)
-    why.push_back(b.beta_estimable ? fmt::format("focal length sd {:.1f} % (limit {:.0f} %)", 100 * focal_sd / f,
-                                                 100 * kDeterminedFocalRelSd)
-                                   : "the focal length is in the null space (e.g. translation only: the affine ambiguity)");
+    why.push_back(!b.beta_estimable ? "the focal length is in the null space (e.g. translation only: the affine ambiguity)"
+                  : !(beta > 0)     ? fmt::format("the focal length's optimum is not positive (beta {:.3g})", beta)
+                                    : fmt::format("focal length sd {:.1f} % (limit {:.0f} %)", 100 * focal_sd / f,
+                                                  100 * kDeterminedFocalRelSd));
   // Wald statistics of each frame's translation (its centre of projection) and rotation against
   // their covariances: far beyond any test level (chi2 > 1000 on 3 dof), the likelihood ratio
   // tests below would be too, and their extra solves are skipped.

@@ -35,7 +35,9 @@ struct TrackFilterOptions {
   /// Initial standard deviation of beta, relative to beta0. Unset: 0.3 for a guessed focal
   /// length, 0.1 after a homography start (estimate(), pipeline/estimate.hpp).
   std::optional<double> beta_sd0;
-  double sigma_px = 0.5;     ///< tracking noise standard deviation (px)
+  /// The measurement noise sd per axis (px). runTrackFilter uses it as given; estimate() takes
+  /// it as a floor and raises it to the measured tracking noise (docs/estimate.md section 3).
+  double sigma_px = 0.5;
   /// Initial sd of N_X, N_Y (and of N_Z of planes > 0), relative to N_Z0. Unset: 1.0 for planes
   /// started frontal, 0.1 after a homography start.
   std::optional<double> normal_sd0;
