@@ -189,6 +189,9 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
   }
   row.focal_est = s.contains("focal_px") && s["focal_px"].is_number() ? optNum(s, "focal_px") : optNum(s, "focal_estimate_px");
   row.focal_sd = optNum(s, "focal_sd_px");
+  // Reported not determined: also on rows without a truth (box.mp4's windows; scoreView sets
+  // the same from the same field where there is one).
+  row.focal_marked = s.contains("focal_determined") && s["focal_determined"] == false;
   if (s.contains("focal_interval_px") && s["focal_interval_px"].is_array() && s["focal_interval_px"].size() == 2) {
     const json& iv = s["focal_interval_px"];
     row.focal_interval_lo = iv[0].is_number() ? std::optional<double>(iv[0].get<double>()) : std::nullopt;
