@@ -592,6 +592,10 @@ void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
         } catch (const std::exception& ex) {
           return fail(kBadInput, ex.what());
         }
+        const int first = tracks.first_frame;
+        if (const int n = trimLeadingEmptyFrames(&tracks); n > 0 && !e.quiet)
+          fmt::print(stderr, "tracks: frames {}-{} of {} have no tracks: the estimate starts at frame {}\n", first,
+                     tracks.first_frame - 1, c->tracks, tracks.first_frame);
         rc = estimateAndReport(tracks, e, {}, t0, false);
       }
       if (rc == 0) rc = guarded([&] { od.commit(); });

@@ -1,5 +1,7 @@
 // `rsfm run`: track a video, then the estimate and report of `rsfm estimate` (apps/estimate_cli.hpp)
 // with the overlay video. Part of rsfm-video, the binary that links OpenCV's video I/O.
+#include <fmt/format.h>
+
 #include "cli_common.hpp"
 #include "estimate_cli.hpp"
 #include "rsfm/clock.hpp"
@@ -48,6 +50,9 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
       }
       Tracks tracks;
       if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
+      if (tracks.first_frame > c->t.range.first && !c->e.quiet)
+        fmt::print(stderr, "track: frames {}-{} have no corners (black or featureless): the tracks start at frame {}\n",
+                   c->t.range.first, tracks.first_frame - 1, tracks.first_frame);
       const double tracking_seconds = steadySeconds() - t0;
       // The tracks are part of the report.
       TrackOverlay overlay;

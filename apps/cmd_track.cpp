@@ -107,6 +107,9 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
     }
     Tracks tracks;
     if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
+    if (tracks.first_frame > c->t.range.first && !c->quiet)
+      fmt::print(stderr, "track: frames {}-{} have no corners (black or featureless): the tracks start at frame {}\n",
+                 c->t.range.first, tracks.first_frame - 1, tracks.first_frame);
     if (int rc = guarded([&] {
           io::writeAllOrNothing({{out / "tracks.csv", io::tracksToString(tracks)}});
           od.commit();

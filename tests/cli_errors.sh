@@ -148,6 +148,18 @@ if "$RSFM" bench regimes --out "$BG" --suite "$TMP/suite-small.json" --cache "$T
 else
   fail=$((fail + 1)); echo "FAIL bench good run: $(cat "$TMP/err.txt"); $(ls -R "$BG" 2>&1 | tr '\n' ' ')"
 fi
+# A tracks file whose first frames have no tracks (a video that fades in): the estimate starts
+# at the first frame with tracks and says so (here it then finds no plane in two tracks).
+LT="$TMP/late-tracks.csv"
+{ printf '# rsfm-tracks 1\n# image_size 640 480\n# frames 0 9\nframe,track,x,y\n'
+  for k in 2 3 4 5 6 7 8 9; do echo "$k,0,$((10 + k)),10"; echo "$k,1,$((10 + k)),50"; done; } >"$LT"
+if ! "$RSFM" estimate --tracks "$LT" --out "$TMP/late" 2>"$TMP/err.txt" &&
+   grep -q "^tracks: frames 0-1 of .* have no tracks: the estimate starts at frame 2$" "$TMP/err.txt" &&
+   grep -q "^rsfm: error: no plane .*(tracks: 2;" "$TMP/err.txt" && [ ! -e "$TMP/late" ]; then
+  pass=$((pass + 1)); echo "ok   estimate: leading frames without tracks left out"
+else
+  fail=$((fail + 1)); echo "FAIL estimate: leading frames without tracks: $(cat "$TMP/err.txt")"
+fi
 # Camera files and the refinement's options (issue 13; docs/estimate.md).
 CT="$TMP/cam-tracks.csv"
 printf '# rsfm-tracks 1\n# image_size 640 480\n# frames 0 2\nframe,track,x,y\n0,0,10,10\n1,0,11,10\n2,0,12,10\n' >"$CT"

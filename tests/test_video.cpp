@@ -242,6 +242,74 @@ TEST(KltTracker, FollowsAKnownSubpixelMotion) {
   EXPECT_LT(err[err.size() * 9 / 10], 0.15) << "90th percentile (px)";
 }
 
+TEST(KltTracker, AVideoThatFadesInFromBlackIsTrackedFromItsFirstCorners) {
+  // Three black frames, then a textured image moving by a known shift. The tracker finds no
+  // corner in the first frame and must look again in every frame until corners appear (before,
+  // it never did: no track at all, as on opencv-doc's Megamind.avi); the tracks then start at
+  // the first textured frame, the frames before it left out.
+  cv::Mat tex(300, 400, CV_8U);
+  cv::RNG rng(7);
+  cv::Mat noise(30, 40, CV_8U);
+  rng.fill(noise, cv::RNG::UNIFORM, 0, 255);
+  cv::resize(noise, tex, tex.size(), 0, 0, cv::INTER_CUBIC);
+  const fs::path d = tempDir("fade_in");
+  const int black = 3, F = 12;
+  const double dx = 0.8, dy = 0.3;
+  for (int k = 0; k < F; ++k) {
+    cv::Mat f(tex.size(), CV_8U, cv::Scalar(0));
+    if (k >= black) {
+      const cv::Mat m = (cv::Mat_<double>(2, 3) << 1, 0, dx * (k - black), 0, 1, dy * (k - black));
+      cv::warpAffine(tex, f, m, tex.size(), cv::INTER_CUBIC, cv::BORDER_REFLECT);
+    }
+    cv::imwrite((d / cv::format("f%03d.png", k)).string(), f);
+  }
+  const Tracks t = vision::trackInput((d / "f%03d.png").string(), vision::TrackerOptions{}, {});
+  EXPECT_EQ(t.first_frame, black);
+  ASSERT_EQ(t.numFrames(), F - black);
+  EXPECT_GT(t.frames[0].size(), 100u);
+  int followed = 0;
+  for (const auto& p : t.frames.back()) {
+    const TrackPoint* p0 = t.find(0, p.id);
+    if (p0 && (p.px - p0->px - Eigen::Vector2d(dx, dy) * (F - 1 - black)).norm() < 0.1) ++followed;
+  }
+  EXPECT_GT(followed, 100);
+  fs::remove_all(d);
+}
+
+TEST(Tracks, LeadingFramesWithoutTracksAreLeftOutAndTheEstimateSaysWhy) {
+  Tracks t;
+  t.image = ImageInfo::centred(64, 48);
+  t.first_frame = 10;
+  t.frames.resize(5);
+  t.frames[2] = {{0, Eigen::Vector2d(5, 5)}};
+  t.frames[4] = {{0, Eigen::Vector2d(6, 5)}};
+  // estimate() refuses a first frame without tracks, naming where they start.
+  try {
+    estimate(t, EstimateOptions{});
+    FAIL() << "estimated from a first frame without tracks";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("frame 10, the first, has no tracks"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("they start at frame 12"), std::string::npos) << e.what();
+  }
+  Tracks u = t;
+  EXPECT_EQ(trimLeadingEmptyFrames(&u), 2);
+  EXPECT_EQ(u.first_frame, 12);
+  EXPECT_EQ(u.numFrames(), 3);
+  EXPECT_EQ(u.frameNumber(2), 14);
+  EXPECT_EQ(trimLeadingEmptyFrames(&u), 0);
+  // With explicit frame numbers (frames left out) the numbers follow.
+  Tracks v = t;
+  v.frame_numbers = {10, 11, 13, 14, 20};
+  EXPECT_EQ(trimLeadingEmptyFrames(&v), 2);
+  EXPECT_EQ(v.frameNumber(0), 13);
+  EXPECT_EQ(v.frameNumber(2), 20);
+  // No track anywhere: left as is.
+  Tracks w;
+  w.frames.resize(3);
+  EXPECT_EQ(trimLeadingEmptyFrames(&w), 0);
+  EXPECT_EQ(w.numFrames(), 3);
+}
+
 TEST(PlaneFinder, FindsTheFacesAndRejectsStaticAndRandomTracks) {
   const SyntheticTracks st = boxTracks(0.5, 25, 20, 5);
   const vision::PlaneFinding pf = vision::findPlanes(st.tracks);

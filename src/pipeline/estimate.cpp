@@ -130,6 +130,16 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     if (note) note(m);
   };
   EstimateResult r;
+  if (input.numFrames() > 0 && input.frames[0].empty()) {
+    int k = 0;
+    while (k < input.numFrames() && input.frames[static_cast<size_t>(k)].empty()) ++k;
+    throw std::invalid_argument(
+        k < input.numFrames()
+            ? fmt::format("tracks: frame {}, the first, has no tracks, and the reference frame needs them: they start at frame {} "
+                          "(trimLeadingEmptyFrames leaves the frames before it out)",
+                          input.frameNumber(0), input.frameNumber(k))
+            : std::string("tracks: no frame has a track"));
+  }
   // A known camera: the tracks onto its ideal pinhole, its intrinsics known.
   EstimateOptions known = o;
   Tracks undistorted;

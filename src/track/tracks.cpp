@@ -30,4 +30,15 @@ std::vector<TrackSpan> trackSpans(const Tracks& t) {
   return s;
 }
 
+int trimLeadingEmptyFrames(Tracks* t) {
+  std::size_t n = 0;
+  while (n < t->frames.size() && t->frames[n].empty()) ++n;
+  if (n == 0 || n == t->frames.size()) return 0;
+  const auto k = static_cast<std::ptrdiff_t>(n);
+  t->frames.erase(t->frames.begin(), t->frames.begin() + k);
+  if (t->frame_numbers.empty()) t->first_frame += static_cast<int>(n);
+  else t->frame_numbers.erase(t->frame_numbers.begin(), t->frame_numbers.begin() + k), t->first_frame = t->frame_numbers.front();
+  return static_cast<int>(n);
+}
+
 }  // namespace rsfm

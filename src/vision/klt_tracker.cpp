@@ -147,7 +147,12 @@ void KltTracker::process(const cv::Mat& frame) {
   if (frames_.empty()) {
     size_ = gray.size();
     detect(gray, true);
-  } else if (!cur_.empty()) {
+  } else if (cur_.empty()) {
+    // No live track: a video that starts black or featureless (a fade-in), or every track lost.
+    // Detect again in every frame until corners appear; before the first track ever, a region
+    // of interest is still the first frame's polygon.
+    detect(gray, next_id_ == 0);
+  } else {
     const int levels = levelsNeeded();
     const std::vector<Eigen::Vector2d> pred = predictedDisplacements();
     std::vector<cv::Point2f> p0, p1, pb;
@@ -233,6 +238,9 @@ Tracks trackInput(const std::string& input, const TrackerOptions& options, Frame
       {need, fmt::format("tracking with a {} px window, {} px template radius and {} px border needs", options.window_px,
                          options.affine.radius, options.border_px)});
   Tracks t = tracker.tracks(range.first);
+  // Frames before the first corner carry nothing to estimate from (the tracker detects again in
+  // every frame until corners appear): the tracks start at the first frame that has some.
+  trimLeadingEmptyFrames(&t);
   t.source = input;
   t.image.fps = fps;
   return t;

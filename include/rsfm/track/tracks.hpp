@@ -63,4 +63,9 @@ struct TrackSpan {
 };
 std::vector<TrackSpan> trackSpans(const Tracks& t);
 
+/// Leaves out the frames before the first one with a track (a video that fades in from black,
+/// featureless frames: nothing to estimate from, and the reference frame needs tracks); returns
+/// how many. first_frame (or frame_numbers) follows. A sequence without any track is left as is.
+int trimLeadingEmptyFrames(Tracks* t);
+
 }  // namespace rsfm

@@ -99,8 +99,10 @@ namespace rsfm::vision {
 
 
 /// Tracks `input` (video, pattern or folder) over `range`. `progress(done, total)` is called per
-/// frame (total = -1 when unknown). Throws io::InputError on bad input (including a range that
-/// starts after the end, or fewer than 2 frames).
+/// frame (total = -1 when unknown). Leading frames without any track (a video that fades in from
+/// black, featureless frames) are left out: the tracks' first_frame is the first frame with
+/// corners (callers say so when it is after range.first). Throws io::InputError on bad input
+/// (including a range that starts after the end, or fewer than 2 frames).
 Tracks trackInput(const std::string& input, const TrackerOptions& options, FrameRange range = {},
                   const std::function<void(int, int)>& progress = {});
 
