@@ -39,6 +39,16 @@ fs::path tempDir(const std::string& name) {
   return d;
 }
 
+/// A 400 x 300 texture: uniform noise on a 40 x 30 grid, bicubically enlarged (seed 7).
+cv::Mat smoothTexture() {
+  cv::Mat tex(300, 400, CV_8U);
+  cv::RNG rng(7);
+  cv::Mat noise(30, 40, CV_8U);
+  rng.fill(noise, cv::RNG::UNIFORM, 0, 255);
+  cv::resize(noise, tex, tex.size(), 0, 0, cv::INTER_CUBIC);
+  return tex;
+}
+
 void writeText(const fs::path& p, const std::string& s) {
   std::ofstream o(p);
   o << s;
@@ -210,11 +220,7 @@ TEST(FrameSource, ReportsMissingCorruptAndGappedInput) {
 
 TEST(KltTracker, FollowsAKnownSubpixelMotion) {
   // A textured image translated by a known sub-pixel shift per frame: tracks follow it.
-  cv::Mat tex(300, 400, CV_8U);
-  cv::RNG rng(7);
-  cv::Mat noise(30, 40, CV_8U);
-  rng.fill(noise, cv::RNG::UNIFORM, 0, 255);
-  cv::resize(noise, tex, tex.size(), 0, 0, cv::INTER_CUBIC);
+  cv::Mat tex = smoothTexture();
   cv::GaussianBlur(tex, tex, cv::Size(3, 3), 0.8);
   vision::TrackerOptions o;
   o.max_tracks = 150;
@@ -247,11 +253,7 @@ TEST(KltTracker, AVideoThatFadesInFromBlackIsTrackedFromItsFirstCorners) {
   // corner in the first frame and must look again in every frame until corners appear (before,
   // it never did: no track at all, as on opencv-doc's Megamind.avi); the tracks then start at
   // the first textured frame, the frames before it left out.
-  cv::Mat tex(300, 400, CV_8U);
-  cv::RNG rng(7);
-  cv::Mat noise(30, 40, CV_8U);
-  rng.fill(noise, cv::RNG::UNIFORM, 0, 255);
-  cv::resize(noise, tex, tex.size(), 0, 0, cv::INTER_CUBIC);
+  const cv::Mat tex = smoothTexture();
   const fs::path d = tempDir("fade_in");
   const int black = 3, F = 12;
   const double dx = 0.8, dy = 0.3;
