@@ -110,7 +110,11 @@ bool FrameSource::read(cv::Mat* img) {
       // Containers often over-count by one; a failure well before the declared end is a
       // corrupt or truncated stream.
       if (count_ > 0 && index_ + 1 < count_ - 1)
-        throw inputError(input_, 0, fmt::format("frame {} cannot be decoded (the video declares {} frames)", index_ + 1, count_));
+        throw inputError(input_, 0,
+                         index_ >= 0 ? fmt::format("frame {} cannot be decoded (the video declares {} frames: a corrupt or "
+                                                   "truncated stream; --last {} keeps the frames before it)",
+                                                   index_ + 1, count_, index_)
+                                     : fmt::format("frame 0 cannot be decoded (the video declares {} frames)", count_));
       if (index_ < 0) throw inputError(input_, 0, "no frame can be decoded");
       return false;
     }
@@ -175,6 +179,7 @@ double forEachFrame(const std::string& input, FrameRange range, const std::funct
     fn(img);
     ++used;
     if (progress) progress(used, total > 0 ? std::max(total, used) : -1);
+    if (src.index() == range.last) break;  // no read past the range (a corrupt frame after it is not ours)
   }
   if (used == 0)
     throw io::InputError(fmt::format("{}: the frame range starts at {} but the input has {} frames", input, range.first,
