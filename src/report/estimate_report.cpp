@@ -246,6 +246,11 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                      {"k_determined", {rf.camera_determined[2], rf.camera_determined[3]}}};
       j["principal_point_px"] = {rf.principal_point_px.x(), rf.principal_point_px.y()};
       j["radial_distortion"] = {rf.camera[2], rf.camera[3]};
+      // Frames whose pose the observations do not determine, as input frame numbers (the
+      // refinement counts them from the first frame of its records).
+      std::vector<int> undetermined;
+      for (int k : rf.undetermined_frames)
+        undetermined.push_back(k >= 0 && k < static_cast<int>(rf.state.frames.size()) ? rf.state.frames[static_cast<std::size_t>(k)].frame : k);
       j["refinement"] = {{"ok", true},
                          {"message", rf.message},
                          {"sigma_px", rf.sigma_px},
@@ -265,7 +270,7 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                          {"wald_translation_chi2", rf.wald_translation_chi2},
                          {"wald_rotation_chi2", rf.wald_rotation_chi2},
                          {"translation_significant", rf.translation_significant},
-                         {"undetermined_frames", rf.undetermined_frames},
+                         {"undetermined_frames", undetermined},
                          {"iterations", rf.iterations},
                          {"initial_rms_px", rf.initial_rms_px},
                          {"final_rms_px", rf.final_rms_px},
