@@ -113,6 +113,9 @@ TEST(Pipeline, LibraryCallGivesTheCliNumbers) {
     // It adapted: the sd used changed over the frames (fixed noise gives min == max).
     EXPECT_LT(pn["omega_sd_deg"]["min"].get<double>(), pn["omega_sd_deg"]["max"].get<double>()) << pn.dump();
     EXPECT_LE(sum, cli.summary["seconds"].get<double>());
+    // A determined problem: the refinement converged before its iteration limit.
+    EXPECT_FALSE(lib.refined.at_iteration_limit);
+    EXPECT_FALSE(cli.summary["refinement"]["at_iteration_limit"].get<bool>());
     // The filter's measurement noise: the --sigma-px floor or the measured tracking noise, if
     // larger; these tracks have 0.5 px per axis, the floor's value.
     const auto& mn = cli.summary["measurement_noise"];

@@ -408,6 +408,9 @@ TEST(Refine, PureTranslationDeterminesNeitherFocalLengthNorTilt) {
   EXPECT_TRUE(std::isinf((*r.refined.focal_interval_px)[1]));
   for (bool d : r.refined.plane_determined) EXPECT_FALSE(d);
   EXPECT_NE(r.refined.why.find("only translates"), std::string::npos) << r.refined.why;
+  // The focal length's valley is flat: the last solve stops at its iteration limit, and says so.
+  EXPECT_TRUE(r.refined.at_iteration_limit);
+  EXPECT_NE(r.refined.why.find("stopped at its iteration limit"), std::string::npos) << r.refined.why;
 }
 
 TEST(Refine, AnUndeterminedFocalLengthGetsItsProfileInterval) {

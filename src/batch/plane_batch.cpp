@@ -513,6 +513,7 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   res.final_cost = summary.final_cost;
   res.message = summary.BriefReport();
   res.converged = summary.IsSolutionUsable() && std::isfinite(summary.final_cost);
+  res.at_iteration_limit = res.converged && summary.termination_type == ceres::NO_CONVERGENCE;
 
   // Result state: fold each frame's omega into its base rotation.
   res.state.R = start.R;

@@ -457,6 +457,11 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     }
   }
   const PlaneBatchState& st = res.state;
+  r.at_iteration_limit = res.at_iteration_limit;
+  if (r.at_iteration_limit)
+    why.push_back(fmt::format("the last solve stopped at its iteration limit ({}) with the cost still falling: a flat valley, "
+                              "its figures are where it stopped, not an optimum",
+                              ro.max_iterations));
   if (!b.ok) {
     r.message = "the refinement converged but its uncertainty could not be computed: " + b.message;
     return r;

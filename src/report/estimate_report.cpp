@@ -271,6 +271,7 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                          {"wald_rotation_chi2", rf.wald_rotation_chi2},
                          {"translation_significant", rf.translation_significant},
                          {"undetermined_frames", undetermined},
+                         {"at_iteration_limit", rf.at_iteration_limit},
                          {"iterations", rf.iterations},
                          {"initial_rms_px", rf.initial_rms_px},
                          {"final_rms_px", rf.final_rms_px},

@@ -93,6 +93,9 @@ struct PlaneBatchState {
 struct PlaneBatchResult {
   PlaneBatchState state;
   bool converged = false;       ///< Ceres reported a usable solution
+  /// Usable, but the solver stopped at max_iterations with the cost still falling (Ceres's
+  /// NO_CONVERGENCE): the state is where it stopped, not an optimum.
+  bool at_iteration_limit = false;
   std::string message;          ///< Ceres's summary line or the failure
   int iterations = 0;
   double initial_cost = 0, final_cost = 0;  ///< 0.5 sum of squared whitened residuals

@@ -138,6 +138,10 @@ struct RefineResult {
   double focal_profile_best_px = 0.0;
   std::vector<bool> plane_determined;
   std::string why;            ///< one line on what is not determined and why (empty when all is)
+  /// The final solve stopped at RefineOptions::max_iterations with its cost still falling (a
+  /// flat valley: the data hardly constrain some direction). Said in `why`; the figures are
+  /// where it stopped.
+  bool at_iteration_limit = false;
   int iterations = 0;
   double initial_rms_px = 0.0, final_rms_px = 0.0;
   double seconds = 0.0;
