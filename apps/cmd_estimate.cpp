@@ -584,6 +584,10 @@ void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
         } catch (const std::exception& ex) {
           return fail(kBadInput, ex.what());
         }
+        const int first = pt.first_frame;
+        if (const int n = trimLeadingEmptyFrames(&pt); n > 0 && !e.quiet)
+          fmt::print(stderr, "patches: frames {}-{} of {} have no patches: the estimate starts at frame {}\n", first,
+                     pt.first_frame - 1, c->patches, pt.first_frame);
         rc = patchEstimateAndReport(pt, e, {}, t0, false);
       } else {
         Tracks tracks;

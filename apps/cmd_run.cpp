@@ -41,6 +41,9 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
       if (c->e.patches) {
         PatchTracks pt;
         if (int rc = guarded([&] { pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range, progress); })) return rc;
+        if (pt.first_frame > c->t.range.first && !c->e.quiet)
+          fmt::print(stderr, "track: frames {}-{} have no patches (black or featureless): the patches start at frame {}\n",
+                     c->t.range.first, pt.first_frame - 1, pt.first_frame);
         PatchOverlay overlay;
         if (c->overlay)
           overlay = [&](const PatchRunResult& res, const std::filesystem::path& tmp) {

@@ -91,6 +91,9 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
     if (c->patches) {
       PatchTracks pt;
       if (int rc = guarded([&] { pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range, progress); })) return rc;
+      if (pt.first_frame > c->t.range.first && !c->quiet)
+        fmt::print(stderr, "track: frames {}-{} have no patches (black or featureless): the patches start at frame {}\n",
+                   c->t.range.first, pt.first_frame - 1, pt.first_frame);
       if (int rc = guarded([&] {
             io::writeAllOrNothing({{out / "patches.csv", io::patchesToString(pt)}});
             od.commit();

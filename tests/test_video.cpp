@@ -8,6 +8,7 @@
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
 #include <random>
 
 #include "rsfm/camera.hpp"
@@ -24,6 +25,7 @@
 #include "rsfm/vision/patch_tracker.hpp"
 #include "rsfm/vision/frame_source.hpp"
 #include "rsfm/vision/klt_tracker.hpp"
+#include "rsfm/vision/overlay.hpp"
 #include "rsfm/vision/plane_finder.hpp"
 #include "rsfm/vision/plane_init.hpp"
 
@@ -282,6 +284,40 @@ TEST(KltTracker, AVideoThatFadesInFromBlackIsTrackedFromItsFirstCorners) {
     if (p0 && (p.px - p0->px - Eigen::Vector2d(dx, dy) * (F - 1 - black)).norm() < 0.1) ++followed;
   }
   EXPECT_GT(followed, 100);
+  fs::remove_all(d);
+}
+
+TEST(Overlay, StartsAtTheFirstFrameWithTracks) {
+  // Three black frames, then six textured ones: the tracks (and a result) start at frame 3, and
+  // so must the overlay video (it started at the range's first frame, one black frame per
+  // frame left out, everything drawn on the wrong frame).
+  const cv::Mat tex = smoothTexture();
+  const fs::path d = tempDir("overlay_fade_in");
+  const int black = 3, F = 9;
+  for (int k = 0; k < F; ++k)
+    cv::imwrite((d / cv::format("f%03d.png", k)).string(), k < black ? cv::Mat(tex.size(), CV_8U, cv::Scalar(0)) : tex);
+  const std::string input = (d / "f%03d.png").string();
+  const Tracks t = vision::trackInput(input, vision::TrackerOptions{}, {});
+  ASSERT_EQ(t.first_frame, black);
+  TrackFilterResult res;
+  res.scale_px = 200;
+  for (int k = black; k < F; ++k) {
+    TrackFrame f;
+    f.frame = k;
+    f.beta = 1.0;
+    res.frames.push_back(f);
+  }
+  const fs::path video = d / "overlay.mp4";
+  vision::writeOverlay(input, {}, t, std::vector<int>(static_cast<size_t>(t.idBound()), -1), res, video);
+  cv::VideoCapture cap(video.string());
+  ASSERT_TRUE(cap.isOpened());
+  cv::Mat first, grey;
+  ASSERT_TRUE(cap.read(first));
+  cv::cvtColor(first, grey, cv::COLOR_BGR2GRAY);
+  EXPECT_GT(cv::mean(grey)[0], 0.5 * cv::mean(tex)[0]) << "the overlay's first frame is a black one";
+  int frames = 1;
+  while (cap.read(first)) ++frames;
+  EXPECT_EQ(frames, F - black);
   fs::remove_all(d);
 }
 

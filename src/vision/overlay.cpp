@@ -109,9 +109,12 @@ OverlayInfo writeOverlay(const std::string& input, FrameRange range, const Track
   OverlayInfo info;
   cv::Mat img, bgr;
   size_t fi = 0;
+  // The tracks start at range.first, or later when its first frames had none (a fade-in:
+  // trimLeadingEmptyFrames), and so does the result.
+  const int first = std::max(range.first, tracks.first_frame);
   while (src.read(&img) && fi < result.frames.size()) {
-    if (src.index() < range.first) continue;
-    const int k = src.index() - range.first;  // index within tracks.frames
+    if (src.index() < first) continue;
+    const int k = src.index() - first;  // index within tracks.frames
     if (img.channels() == 1) cv::cvtColor(img, bgr, cv::COLOR_GRAY2BGR);
     else bgr = img.clone();
     if (!vw.isOpened()) openWriter(&vw, path, src.fps(), evenSize(bgr.size()), &info);
@@ -169,9 +172,10 @@ OverlayInfo writePatchOverlay(const std::string& input, FrameRange range, const 
   cv::Mat img, bgr;
   size_t fi = 0;
   const Eigen::Vector2d cpx(tracks.image.cx, tracks.image.cy);
+  const int first = std::max(range.first, tracks.first_frame);  // as writeOverlay's
   while (src.read(&img) && fi < result.frames.size()) {
-    if (src.index() < range.first) continue;
-    const int k = src.index() - range.first;
+    if (src.index() < first) continue;
+    const int k = src.index() - first;
     if (img.channels() == 1) cv::cvtColor(img, bgr, cv::COLOR_GRAY2BGR);
     else bgr = img.clone();
     if (!vw.isOpened()) openWriter(&vw, path, src.fps(), evenSize(bgr.size()), &info);

@@ -127,6 +127,7 @@ PatchTracks trackPatchesInput(const std::string& input, const PatchTrackerOption
       input, range, [&](const cv::Mat& img) { tracker.process(img); }, progress,
       {need, fmt::format("patches of radius {} px with a {} px window need", options.affine.radius, options.window_px)});
   PatchTracks t = tracker.tracks(range.first);
+  trimLeadingEmptyFrames(&t);  // a fade-in: the patches start at the first frame with one
   t.source = input;
   t.image.fps = fps;
   return t;

@@ -36,4 +36,8 @@ struct PatchTracks {
   const PatchObservation* find(int k, int id) const;
 };
 
+/// As trimLeadingEmptyFrames(Tracks*) (track/tracks.hpp): leaves out the frames before the first
+/// one with a patch and returns how many; first_frame follows. Without any patch: left as is.
+int trimLeadingEmptyFrames(PatchTracks* t);
+
 }  // namespace rsfm
