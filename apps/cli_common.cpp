@@ -65,6 +65,12 @@ std::string& invocationStorage() {
 
 const std::string& invocation() { return detail::invocationStorage(); }
 
+void sayLeadingFramesLeftOut(bool quiet, int range_first, int first, const char* features, const char* tracks) {
+  if (first > range_first && !quiet)
+    fmt::print(stderr, "track: frames {}-{} have no {} (black or featureless): the {} start at frame {}\n", range_first, first - 1,
+               features, tracks, first);
+}
+
 void warnFigures(const report::Figures& f) {
   if (const std::string w = f.warning(); !w.empty()) fmt::print(stderr, "rsfm: warning: {}\n", w);
 }

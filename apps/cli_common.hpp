@@ -28,6 +28,11 @@ int guarded(const std::function<void()>& f);
 /// `unit` names what is counted ("trials", "frames").
 std::function<void(int, int)> progressReporter(std::string name, std::string unit = "trials");
 
+/// `rsfm track` / `run`: when the tracker left out the frames from `range_first` to `first` - 1
+/// (nothing to track there: trimLeadingEmptyFrames), says so on stderr unless `quiet`.
+/// `features` names what was missing ("corners", "patches"), `tracks` what starts at `first`.
+void sayLeadingFramesLeftOut(bool quiet, int range_first, int first, const char* features, const char* tracks);
+
 /// A registered command: the CLI11 subcommand and what runs when it was parsed.
 struct Command {
   CLI::App* app = nullptr;

@@ -351,6 +351,17 @@ void writeHtmlReport(io::AtomicFileSet* files, const std::string& dir, const nlo
   files->write(std::filesystem::path(dir) / "report.html", report::htmlReport(h));
 }
 
+
+/// A tracks or patches file whose first frames have none: they are left out
+/// (trimLeadingEmptyFrames) and the run says so ("tracks: frames A-B of FILE have no tracks").
+template <class T>
+void trimAndSay(T* t, const char* what, const std::string& file, bool quiet) {
+  const int first = t->first_frame;
+  if (trimLeadingEmptyFrames(t) > 0 && !quiet)
+    fmt::print(stderr, "{}: frames {}-{} of {} have no {}: the estimate starts at frame {}\n", what, first, t->first_frame - 1, file,
+               what, t->first_frame);
+}
+
 }  // namespace
 
 namespace {
@@ -584,10 +595,7 @@ void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
         } catch (const std::exception& ex) {
           return fail(kBadInput, ex.what());
         }
-        const int first = pt.first_frame;
-        if (const int n = trimLeadingEmptyFrames(&pt); n > 0 && !e.quiet)
-          fmt::print(stderr, "patches: frames {}-{} of {} have no patches: the estimate starts at frame {}\n", first,
-                     pt.first_frame - 1, c->patches, pt.first_frame);
+        trimAndSay(&pt, "patches", c->patches, e.quiet);
         rc = patchEstimateAndReport(pt, e, {}, t0, false);
       } else {
         Tracks tracks;
@@ -596,10 +604,7 @@ void addEstimateCommands(CLI::App& app, std::vector<Command>& commands) {
         } catch (const std::exception& ex) {
           return fail(kBadInput, ex.what());
         }
-        const int first = tracks.first_frame;
-        if (const int n = trimLeadingEmptyFrames(&tracks); n > 0 && !e.quiet)
-          fmt::print(stderr, "tracks: frames {}-{} of {} have no tracks: the estimate starts at frame {}\n", first,
-                     tracks.first_frame - 1, c->tracks, tracks.first_frame);
+        trimAndSay(&tracks, "tracks", c->tracks, e.quiet);
         rc = estimateAndReport(tracks, e, {}, t0, false);
       }
       if (rc == 0) rc = guarded([&] { od.commit(); });

@@ -1,7 +1,5 @@
 // `rsfm run`: track a video, then the estimate and report of `rsfm estimate` (apps/estimate_cli.hpp)
 // with the overlay video. Part of rsfm-video, the binary that links OpenCV's video I/O.
-#include <fmt/format.h>
-
 #include "cli_common.hpp"
 #include "estimate_cli.hpp"
 #include "rsfm/clock.hpp"
@@ -41,9 +39,7 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
       if (c->e.patches) {
         PatchTracks pt;
         if (int rc = guarded([&] { pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range, progress); })) return rc;
-        if (pt.first_frame > c->t.range.first && !c->e.quiet)
-          fmt::print(stderr, "track: frames {}-{} have no patches (black or featureless): the patches start at frame {}\n",
-                     c->t.range.first, pt.first_frame - 1, pt.first_frame);
+        sayLeadingFramesLeftOut(c->e.quiet, c->t.range.first, pt.first_frame, "patches", "patches");
         PatchOverlay overlay;
         if (c->overlay)
           overlay = [&](const PatchRunResult& res, const std::filesystem::path& tmp) {
@@ -53,9 +49,7 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
       }
       Tracks tracks;
       if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
-      if (tracks.first_frame > c->t.range.first && !c->e.quiet)
-        fmt::print(stderr, "track: frames {}-{} have no corners (black or featureless): the tracks start at frame {}\n",
-                   c->t.range.first, tracks.first_frame - 1, tracks.first_frame);
+      sayLeadingFramesLeftOut(c->e.quiet, c->t.range.first, tracks.first_frame, "corners", "tracks");
       const double tracking_seconds = steadySeconds() - t0;
       // The tracks are part of the report.
       TrackOverlay overlay;

@@ -91,9 +91,7 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
     if (c->patches) {
       PatchTracks pt;
       if (int rc = guarded([&] { pt = vision::trackPatchesInput(c->input, c->t.patches, c->t.range, progress); })) return rc;
-      if (pt.first_frame > c->t.range.first && !c->quiet)
-        fmt::print(stderr, "track: frames {}-{} have no patches (black or featureless): the patches start at frame {}\n",
-                   c->t.range.first, pt.first_frame - 1, pt.first_frame);
+      sayLeadingFramesLeftOut(c->quiet, c->t.range.first, pt.first_frame, "patches", "patches");
       if (int rc = guarded([&] {
             io::writeAllOrNothing({{out / "patches.csv", io::patchesToString(pt)}});
             od.commit();
@@ -110,9 +108,7 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
     }
     Tracks tracks;
     if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
-    if (tracks.first_frame > c->t.range.first && !c->quiet)
-      fmt::print(stderr, "track: frames {}-{} have no corners (black or featureless): the tracks start at frame {}\n",
-                 c->t.range.first, tracks.first_frame - 1, tracks.first_frame);
+    sayLeadingFramesLeftOut(c->quiet, c->t.range.first, tracks.first_frame, "corners", "tracks");
     if (int rc = guarded([&] {
           io::writeAllOrNothing({{out / "tracks.csv", io::tracksToString(tracks)}});
           od.commit();

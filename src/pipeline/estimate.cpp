@@ -130,9 +130,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     if (note) note(m);
   };
   EstimateResult r;
-  if (input.numFrames() > 0 && input.frames[0].empty()) {
-    int k = 0;
-    while (k < input.numFrames() && input.frames[static_cast<size_t>(k)].empty()) ++k;
+  if (const auto k = static_cast<int>(leadingEmptyFrames(input.frames)); k > 0) {
     throw std::invalid_argument(
         k < input.numFrames()
             ? fmt::format("tracks: frame {}, the first, has no tracks, and the reference frame needs them: they start at frame {} "

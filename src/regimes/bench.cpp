@@ -134,7 +134,6 @@ std::optional<double> optNum(const json& j, const char* key) {
 /// One estimate (the main one, or summary.json's "online" section) against the truth.
 struct ViewScore {
   std::optional<double> focal_err_pct;
-  bool focal_marked = false;  ///< reported not determined (focal_determined: false)
   std::optional<bool> focal_in_95;
   std::optional<double> worst_normal_err_deg;
   int normals_in_95 = 0;
@@ -145,7 +144,7 @@ ViewScore scoreView(const json& v, const io::Summary& truth, bool focal_determin
                     const std::vector<Eigen::Vector3d>& est_planes, const std::vector<double>& est_distances, double scale) {
   ViewScore out;
   // Focal length: the reported 95 % interval is f +- 1.96 sd, or the interval given when not determined.
-  const bool focal_marked = out.focal_marked = v.contains("focal_determined") && v["focal_determined"] == false;
+  const bool focal_marked = v.contains("focal_determined") && v["focal_determined"] == false;
   const std::optional<double> f = v.contains("focal_px") && v["focal_px"].is_number() ? optNum(v, "focal_px") : optNum(v, "focal_estimate_px");
   if (truth.focal_px && f) out.focal_err_pct = 100.0 * (*f - *truth.focal_px) / *truth.focal_px;
   if (truth.focal_px && focal_determinable) {
@@ -189,8 +188,7 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
   }
   row.focal_est = s.contains("focal_px") && s["focal_px"].is_number() ? optNum(s, "focal_px") : optNum(s, "focal_estimate_px");
   row.focal_sd = optNum(s, "focal_sd_px");
-  // Reported not determined: also on rows without a truth (box.mp4's windows; scoreView sets
-  // the same from the same field where there is one).
+  // Reported not determined, on every row (box.mp4's windows have no truth).
   row.focal_marked = s.contains("focal_determined") && s["focal_determined"] == false;
   if (s.contains("focal_interval_px") && s["focal_interval_px"].is_array() && s["focal_interval_px"].size() == 2) {
     const json& iv = s["focal_interval_px"];
@@ -253,7 +251,6 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
     row.worst_normal_err_deg = v.worst_normal_err_deg;
     row.normals_in_95 = v.normals_in_95;
     row.reported_undetermined = v.reported_undetermined;
-    row.focal_marked = v.focal_marked;
   }
   if (s.contains("online") && s["online"].is_object()) {
     // The recursive filter's own estimate (kept beside the refinement's).

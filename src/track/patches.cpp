@@ -12,8 +12,7 @@ const PatchObservation* PatchTracks::find(int k, int id) const {
 }
 
 int trimLeadingEmptyFrames(PatchTracks* t) {
-  std::size_t n = 0;
-  while (n < t->frames.size() && t->frames[n].empty()) ++n;
+  const std::size_t n = leadingEmptyFrames(t->frames);
   if (n == 0 || n == t->frames.size()) return 0;
   t->frames.erase(t->frames.begin(), t->frames.begin() + static_cast<std::ptrdiff_t>(n));
   t->first_frame += static_cast<int>(n);

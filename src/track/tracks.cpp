@@ -31,8 +31,7 @@ std::vector<TrackSpan> trackSpans(const Tracks& t) {
 }
 
 int trimLeadingEmptyFrames(Tracks* t) {
-  std::size_t n = 0;
-  while (n < t->frames.size() && t->frames[n].empty()) ++n;
+  const std::size_t n = leadingEmptyFrames(t->frames);
   if (n == 0 || n == t->frames.size()) return 0;
   const auto k = static_cast<std::ptrdiff_t>(n);
   t->frames.erase(t->frames.begin(), t->frames.begin() + k);

@@ -4,6 +4,8 @@
 // No I/O here: the file format lives in rsfm/io/tracks_io.hpp.
 #include <Eigen/Core>
 
+#include <cstddef>
+
 #include <string>
 #include <vector>
 
@@ -62,6 +64,15 @@ struct TrackSpan {
   int length() const { return first < 0 ? 0 : last - first + 1; }
 };
 std::vector<TrackSpan> trackSpans(const Tracks& t);
+
+/// The number of frames before the first one with an observation (all of them when none has
+/// one): a frames vector of Tracks or PatchTracks.
+template <class Frames>
+std::size_t leadingEmptyFrames(const Frames& frames) {
+  std::size_t n = 0;
+  while (n < frames.size() && frames[n].empty()) ++n;
+  return n;
+}
 
 /// Leaves out the frames before the first one with a track (a video that fades in from black,
 /// featureless frames: nothing to estimate from, and the reference frame needs tracks); returns
