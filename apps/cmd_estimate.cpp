@@ -388,11 +388,17 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
   rep.model = e.est.filter.model;
   rep.command = invocation();
   nlohmann::json cands = nlohmann::json::array();
+  const int reference = tracks.frameNumber(r.still.still_frames);
   for (const auto& c : pf.candidates)
     cands.push_back({{"verdict", vision::toString(c.verdict)}, {"label", c.label}, {"tracks", c.members.size()},
-                     {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction}});
+                     {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction},
+                     {"reference_frame", reference + c.first_frame},
+                     {"pair_frame", c.pair_frame >= 0 ? nlohmann::json(reference + c.pair_frame) : nlohmann::json(nullptr)}});
   if (!r.start.hypotheses.empty()) rep.extra["start"] = startJson(r.start);
-  const int reference = tracks.frameNumber(r.still.still_frames);
+  // The frame from which the filter estimates each plane (a plane that came into view later: the
+  // frame it joined; docs/estimate.md section 1).
+  nlohmann::json from = nlohmann::json::array();
+  for (int k : r.online.plane_first_frame) from.push_back(k > 0 ? tracks.frameNumber(k) : reference);
   rep.extra["still_start"] = {{"reference_frame", reference},
                               {"still_frames", r.still.still_frames},
                               {"threshold_px", r.still.threshold_px},
@@ -409,6 +415,7 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
                                 {"tolerances_px", {{"ransac", tol.ransac_px}, {"stray", tol.verify_px}, {"static", tol.static_px},
                                                    {"same_motion", tol.motion_px}, {"still", tol.still_px}}},
                                 {"tolerances_widened", pf.widened},
+                                {"planes_estimated_from_frame", from},
                                 {"manual", !e.est.finder.rois.empty()}};
   // The filter's measurement noise: the --sigma-px floor raised to the tracking noise (estimate()).
   rep.extra["measurement_noise"] = {{"sigma_px", r.filter_used.sigma_px},

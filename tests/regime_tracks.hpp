@@ -23,8 +23,11 @@ struct RegimeTracks {
 };
 /// `ar_rho` > 0: each track's error drifts as AR(1), e_k = rho e_{k-1} + sqrt(1 - rho^2) g_k (a
 /// tracker's error); 0: independent noise (the same draws as before the option existed).
-/// `grid`: points per face side (grid x grid points on each face).
-inline RegimeTracks regimeTracks(const render::RenderOptions& o, double noise_px, unsigned seed, double ar_rho = 0.0, int grid = 12) {
+/// `grid`: points per face side (grid x grid points on each face). `later_tracks`: a point out of
+/// view in frame 0 is tracked from the frame it comes into view (false: only the points seen in
+/// frame 0 are tracked, as before the option existed).
+inline RegimeTracks regimeTracks(const render::RenderOptions& o, double noise_px, unsigned seed, double ar_rho = 0.0, int grid = 12,
+                                 bool later_tracks = false) {
   render::Scene scene(o);
   RegimeTracks out;
   out.truth = scene.truth();
@@ -44,7 +47,7 @@ inline RegimeTracks regimeTracks(const render::RenderOptions& o, double noise_px
             f.corners[0] + (i + 0.5) / grid * (f.corners[1] - f.corners[0]) + (j + 0.5) / grid * (f.corners[3] - f.corners[0]);
         bool alive = true, any = false;
         Eigen::Vector2d e(0, 0);
-        for (int k = 0; k < o.frames && alive; ++k) {
+        for (int k = 0; k < o.frames && (alive || (later_tracks && !any)); ++k) {
           const auto x = scene.project(X, k);
           alive = x && x->x() > 5 && x->y() > 5 && x->x() < o.width - 6 && x->y() < o.height - 6 &&
                   labels[k].at<uchar>(static_cast<int>(std::lround(x->y())), static_cast<int>(std::lround(x->x()))) ==

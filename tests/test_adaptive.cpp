@@ -483,6 +483,61 @@ TEST(Adaptive, TracksRunningOutEndTheEstimateWithAResult) {
   EXPECT_EQ(e.refined.state.frames.size(), 50u);
 }
 
+/// The angle (deg) between a plane normal and the nearest of the truth's (either sign).
+double nearestTruthNormalDeg(const Eigen::Vector3d& n, const std::vector<Eigen::Vector3d>& truth) {
+  double best = 180.0;
+  for (const Eigen::Vector3d& t : truth)
+    best = std::min(best, std::acos(std::min(1.0, std::abs(n.normalized().dot(t.normalized())))) * 180.0 / M_PI);
+  return best;
+}
+
+TEST(Adaptive, PlanesThatComeIntoViewLaterJoinTheFilter) {
+  // The camera translates sideways past the box on its floor (600 px, the translation subtending
+  // 90 deg at the box): the faces seen in the reference frame leave the view and others come in.
+  // Without the late planes the estimate ends where the first planes' tracks run out (frame 53).
+  // With the focal length known, a translation determines every plane's normal
+  // (H = I + t n^T / d, K known: n up to scale), so the late planes can be checked against the
+  // truth; the refinement is left out (the online filter is what places them).
+  render::RenderOptions ro = render::builtinRegimeSuite().find("tele-translate")->options;
+  ro.focal_px = 600;
+  ro.orbit_deg = 90;
+  const test::RegimeTracks rt = test::regimeTracks(ro, 0.2, 5, 0.0, 10, true);
+  const std::size_t F = rt.tracks.frames.size();
+  EstimateOptions o;
+  o.refine.enabled = false;
+  o.filter.focal_px = *rt.truth.focal_px;
+  const EstimateResult with = estimate(rt.tracks, o);
+  o.late_planes = false;
+  const EstimateResult without = estimate(rt.tracks, o);
+  std::printf("without late planes: %zu of %zu frames, %d planes (%s); with: %zu frames, %d planes\n", without.online.frames.size(), F,
+              without.online.planes, without.online.ended.c_str(), with.online.frames.size(), with.online.planes);
+  ASSERT_TRUE(with.online.ok()) << with.online.stopped;
+  EXPECT_LT(without.online.frames.size(), F) << "the first planes last to the end: the test shows nothing";
+  EXPECT_EQ(with.online.frames.size(), F) << with.online.ended;
+  ASSERT_GT(with.online.planes, without.online.planes);
+  ASSERT_EQ(static_cast<int>(with.online.plane_first_frame.size()), with.online.planes);
+  const TrackFrame& last = with.online.frames.back();
+  int late_checked = 0;
+  for (int j = 0; j < with.online.planes; ++j) {
+    const double err = nearestTruthNormalDeg(metricPlane(last.N[static_cast<size_t>(j)], last.beta).n, rt.truth.planes);
+    const int tracks = with.planes.count(j);
+    std::printf("plane %d: from frame %d, %d tracks, %.2f deg from the nearest truth normal\n", j, with.online.plane_first_frame[j],
+                tracks, err);
+    if (j < without.online.planes) continue;
+    EXPECT_GT(with.online.plane_first_frame[j], 0) << j;
+    if (tracks >= 30) {
+      EXPECT_LT(err, 2.0) << j;
+      ++late_checked;
+    }
+  }
+  EXPECT_GE(late_checked, 2);
+  // A late search that finds a plane the filter already has (the floor's new tracks) joins it.
+  int rejoined = 0;
+  for (const auto& c : with.planes.candidates) rejoined += c.verdict == vision::PlaneVerdict::Rejoined;
+  EXPECT_GE(rejoined, 1);
+  EXPECT_EQ(with.planes.numPlanes(), with.online.planes);
+}
+
 TEST(Adaptive, NothingMovingSaysSo) {
   // A still camera before a still scene: 60 frames of tracks that only jitter by 0.05 px.
   Tracks t;

@@ -190,6 +190,36 @@ TEST(PlaneTransfer, RecoversTheReferencePositionOfAPlanePoint) {
             MeasureStatus::BehindCamera);
 }
 
+TEST(PlaneTransfer, TwoViewsPlaceAPointAndRefuseTooLittleParallax) {
+  // A plane point seen by two cameras (motions from the reference frame) is triangulated back
+  // (the start of a plane that joins mid-run, PlaneModel::twoViewPoint).
+  const Eigen::Vector3d N(0.2, -0.1, 0.4);
+  const double beta = 0.8;
+  const Eigen::Matrix3d Ra = incrementalRotation(Eigen::Vector3d(0.05, -0.2, 0.03));
+  const Eigen::Vector3d ta(0.3, -0.1, 0.2);
+  const Eigen::Matrix3d Rb = incrementalRotation(Eigen::Vector3d(-0.1, 0.15, 0.0));
+  const Eigen::Vector3d tb(-0.4, 0.2, 0.5);
+  auto see = [&](const Eigen::Matrix3d& R, const Eigen::Vector3d& t, const Eigen::Vector3d& X) {
+    const Eigen::Vector3d Xc = t + R * X;
+    return Eigen::Vector2d(Xc.head<2>() / (1.0 + beta * Xc.z()));
+  };
+  for (const Eigen::Vector2d& uv0 : {Eigen::Vector2d(0.1, 0.2), Eigen::Vector2d(-0.4, 0.3), Eigen::Vector2d(0, 0)}) {
+    Eigen::Vector3d X, back;
+    ASSERT_EQ(PlaneModel::point(N, beta, uv0, &X, nullptr, nullptr), MeasureStatus::Ok);
+    double parallax = 0;
+    ASSERT_EQ(PlaneModel::twoViewPoint(beta, Ra, ta, see(Ra, ta, X), Rb, tb, see(Rb, tb, X), 1e-3, &back, &parallax), MeasureStatus::Ok);
+    EXPECT_NEAR((back - X).norm(), 0.0, 1e-10);
+    EXPECT_GT(parallax, 1e-3);
+    // The same camera twice: no parallax, no point.
+    EXPECT_EQ(PlaneModel::twoViewPoint(beta, Ra, ta, see(Ra, ta, X), Ra, ta, see(Ra, ta, X), 1e-3, &back), MeasureStatus::HorizonSingular);
+  }
+  // Rays that meet behind the cameras are refused.
+  Eigen::Vector3d back;
+  EXPECT_EQ(PlaneModel::twoViewPoint(1.0, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), Eigen::Vector2d(0.1, 0.0),
+                                     Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.1, 0, 0), Eigen::Vector2d(0.0, 0.0), 1e-3, &back),
+            MeasureStatus::BehindCamera);
+}
+
 TEST(FrameSource, ReportsMissingCorruptAndGappedInput) {
   const fs::path d = tempDir("src");
   auto msgOf = [](const std::string& in) -> std::string {

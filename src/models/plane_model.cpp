@@ -2,6 +2,8 @@
 
 #include "rsfm/models/linearize.hpp"
 
+#include <Eigen/Geometry>
+
 #include <cmath>
 #include <stdexcept>
 
@@ -125,6 +127,36 @@ MeasureStatus PlaneModel::transferToReference(const Eigen::Vector3d& N, double b
   if (!(w > 0.0)) return MeasureStatus::BehindCamera;
   *uv_ref = X.head<2>() / w;
   return uv_ref->allFinite() ? MeasureStatus::Ok : MeasureStatus::NonFinite;
+}
+
+}  // namespace rsfm
+
+namespace rsfm {
+
+MeasureStatus PlaneModel::twoViewPoint(double beta, const Eigen::Matrix3d& Ra, const Eigen::Vector3d& ta,
+                                       const Eigen::Vector2d& uv_a, const Eigen::Matrix3d& Rb, const Eigen::Vector3d& tb,
+                                       const Eigen::Vector2d& uv_b, double min_parallax_rad, Eigen::Vector3d* X,
+                                       double* parallax_rad) {
+  if (!std::isfinite(beta) || !Ra.allFinite() || !ta.allFinite() || !uv_a.allFinite() || !Rb.allFinite() ||
+      !tb.allFinite() || !uv_b.allFinite())
+    return MeasureStatus::NonFinite;
+  // Each ray in the reference frame: origin R^T ((u, v, 0) - t), direction R^T (beta u, beta v, 1).
+  const Eigen::Vector3d oa = Ra.transpose() * (Eigen::Vector3d(uv_a.x(), uv_a.y(), 0.0) - ta);
+  const Eigen::Vector3d ob = Rb.transpose() * (Eigen::Vector3d(uv_b.x(), uv_b.y(), 0.0) - tb);
+  const Eigen::Vector3d da = Ra.transpose() * Eigen::Vector3d(beta * uv_a.x(), beta * uv_a.y(), 1.0);
+  const Eigen::Vector3d db = Rb.transpose() * Eigen::Vector3d(beta * uv_b.x(), beta * uv_b.y(), 1.0);
+  const double angle = std::atan2(da.cross(db).norm(), da.dot(db));
+  if (parallax_rad) *parallax_rad = angle;
+  if (!(angle >= min_parallax_rad)) return MeasureStatus::HorizonSingular;
+  // Closest approach of oa + la da and ob + lb db.
+  const Eigen::Vector3d w = oa - ob;
+  const double a = da.dot(da), b = da.dot(db), c = db.dot(db), d = da.dot(w), e = db.dot(w);
+  const double den = a * c - b * b;
+  if (!(den > 0.0)) return MeasureStatus::HorizonSingular;
+  const double la = (b * e - c * d) / den, lb = (a * e - b * d) / den;
+  if (!(1.0 + beta * la > 0.0) || !(1.0 + beta * lb > 0.0)) return MeasureStatus::BehindCamera;
+  *X = 0.5 * (oa + la * da + ob + lb * db);
+  return X->allFinite() ? MeasureStatus::Ok : MeasureStatus::NonFinite;
 }
 
 }  // namespace rsfm

@@ -1,6 +1,7 @@
 #include "rsfm/pipeline/estimate.hpp"
 #include "rsfm/chi2.hpp"
 #include "rsfm/clock.hpp"
+#include "rsfm/models/plane_model.hpp"
 
 #include <fmt/format.h>
 
@@ -121,6 +122,89 @@ void scoreStartHypotheses(const Tracks& tracks, const std::vector<int>& labels, 
       start->chosen = static_cast<int>(i);
     }
   }
+}
+
+// Documented in pipeline/estimate.hpp.
+std::vector<TrackFilterOptions::LatePlane> findLatePlanes(const Tracks& tracks, vision::PlaneFinding* pf,
+                                                         const vision::PlaneFinderOptions& options) {
+  std::vector<TrackFilterOptions::LatePlane> late;
+  const int F = tracks.numFrames();
+  std::vector<int>& labels = pf->labels;
+  if (labels.size() < static_cast<size_t>(tracks.idBound())) labels.resize(static_cast<size_t>(tracks.idBound()), -2);
+  constexpr int kMinSearchFrames = 3;  // a search's reference frame is this far before its last pair frame
+  int next_label = pf->numPlanes();
+  int after = 1;  // the first search considers the tracks born after the reference frame
+  const std::vector<TrackSpan> spans = trackSpans(tracks);
+  auto liveAt = [&](int k) {
+    int live = 0;
+    for (const TrackPoint& p : tracks.frames[static_cast<size_t>(k)]) live += labels[static_cast<size_t>(p.id)] >= 0;
+    return live;
+  };
+  for (int round = 0; round < 16; ++round) {
+    // The planes in hand are tracked up to K_end: the frame before their tracks first number too
+    // few, fewer than two homography tests' worth (16) or, for planes with fewer tracks, than half
+    // of theirs at the search's start, but at least twice what the filter needs (10).
+    const int enough = std::min(2 * vision::kHomographyTestTracks, std::max(2 * PlaneModel::kMinPoints, liveAt(after) / 2));
+    int K_end = F - 1;
+    for (int k = after + 1; k < F; ++k) {
+      if (liveAt(k) < enough) {
+        K_end = k - 1;
+        break;
+      }
+    }
+    if (K_end >= F - 1 || K_end - kMinSearchFrames <= after) break;
+    // The tracks a search considers: those no plane holds that were born after the previous
+    // search's reference frame (the reference frame's own were judged by the first search).
+    auto eligible = [&](int id) { return labels[static_cast<size_t>(id)] < 0 && spans[static_cast<size_t>(id)].first >= after; };
+    // Its reference frame: the earliest frame before K_end (the most parallax) where at least half
+    // as many of them are alive there and at K_end as at the best frame.
+    std::vector<int> both(static_cast<size_t>(K_end + 1), 0);
+    int best = 0;
+    for (int k = after; k <= K_end - kMinSearchFrames; ++k) {
+      for (const TrackPoint& p : tracks.frames[static_cast<size_t>(k)])
+        both[static_cast<size_t>(k)] += eligible(p.id) && tracks.find(K_end, p.id) != nullptr;
+      best = std::max(best, both[static_cast<size_t>(k)]);
+    }
+    int K = -1;
+    for (int k = after; k <= K_end - kMinSearchFrames && K < 0; ++k)
+      if (both[static_cast<size_t>(k)] >= std::max(options.min_plane_tracks, (best + 1) / 2)) K = k;
+    if (K < 0) break;
+    Tracks sub;
+    sub.image = tracks.image;
+    sub.source = tracks.source;
+    sub.first_frame = tracks.frameNumber(K);
+    for (int k = K; k < F; ++k) {
+      std::vector<TrackPoint> pts;
+      for (const TrackPoint& p : tracks.frames[static_cast<size_t>(k)])
+        if (eligible(p.id)) pts.push_back(p);
+      sub.frames.push_back(std::move(pts));
+      sub.frame_numbers.push_back(tracks.frameNumber(k));
+    }
+    vision::PlaneFinderOptions fo = options;
+    fo.last_pair_frame = K_end - K;
+    fo.rois.clear();
+    const vision::PlaneFinding found = vision::findPlanes(sub, fo);
+    std::vector<const vision::FoundPlane*> accepted;
+    for (const auto& c : found.candidates)
+      if (c.verdict == vision::PlaneVerdict::Accepted && c.label >= 0) accepted.push_back(&c);
+    std::sort(accepted.begin(), accepted.end(), [](auto* a, auto* b) { return a->label < b->label; });
+    for (const vision::FoundPlane* c : accepted) {
+      vision::FoundPlane nc = *c;
+      nc.label = next_label++;
+      nc.first_frame = K;
+      nc.pair_frame = K + (c->pair_frame >= 0 ? c->pair_frame : found.pair_frame);
+      nc.H.clear();
+      nc.support.clear();
+      for (size_t id = 0; id < found.labels.size() && id < labels.size(); ++id)
+        if (found.labels[id] == c->label) labels[id] = nc.label;
+      late.push_back({nc.label, K, std::max(K + 1, nc.pair_frame)});
+      pf->candidates.push_back(std::move(nc));
+    }
+    if (accepted.empty()) break;
+    after = K + 1;  // the next search starts after this one's reference frame
+  }
+  // The filter takes them in the order their triangulation may start.
+  return late;
 }
 
 EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
@@ -315,9 +399,41 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
       start_at_grid_end = h.at_grid_end;
     }
   }
+  if (o.late_planes && fopt.model == TrackModel::Planes && o.finder.rois.empty()) {
+    fopt.late_planes = findLatePlanes(tracks, &r.planes, o.finder);
+    if (!fopt.late_planes.empty()) {
+      std::string line = fmt::format("planes: {} more came into view later:", fopt.late_planes.size());
+      for (const auto& lp : fopt.late_planes)
+        line += fmt::format(" [plane {}: {} tracks from frame {}, placed from frame {} on]", lp.label, pf.count(lp.label),
+                            tracks.frameNumber(lp.first_frame), tracks.frameNumber(lp.init_frame));
+      say(line);
+    }
+  }
   stageDone(&r.seconds.start);
   r.filter_used = fopt;
   r.online = runTrackFilter(tracks, pf.labels, fopt, progress);
+  if (!fopt.late_planes.empty() && !r.online.plane_of_label.empty()) {
+    // The state's planes in the order they joined; a late plane that never could be placed: outliers.
+    std::vector<int>& labels = r.planes.labels;
+    for (int& l : labels)
+      if (l >= 0 && l < static_cast<int>(r.online.plane_of_label.size())) l = r.online.plane_of_label[static_cast<size_t>(l)];
+    std::vector<char> taken(r.online.plane_of_label.size(), 0);
+    for (auto& c : r.planes.candidates) {
+      if (c.label < 0 || c.label >= static_cast<int>(r.online.plane_of_label.size())) continue;
+      c.label = r.online.plane_of_label[static_cast<size_t>(c.label)];
+      if (c.label < 0) {
+        c.verdict = vision::PlaneVerdict::NotTriangulated;
+        say(fmt::format("planes: a plane of {} tracks from frame {} never had the parallax to be placed: its tracks are left out",
+                        c.members.size(), tracks.frameNumber(c.first_frame)));
+      } else if (taken[static_cast<size_t>(c.label)]) {
+        c.verdict = vision::PlaneVerdict::Rejoined;
+        say(fmt::format("planes: the {} tracks of frame {} on are plane {} seen again: they joined it", c.members.size(),
+                        tracks.frameNumber(c.first_frame), c.label));
+      } else {
+        taken[static_cast<size_t>(c.label)] = 1;
+      }
+    }
+  }
   stageDone(&r.seconds.filter);
   if (!r.online.ended.empty()) say("warning: " + r.online.ended);
   if (o.refine.enabled && r.online.ok() && fopt.model != TrackModel::Point) {
@@ -346,6 +462,12 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     fillStill(&r.online, nullptr, kept, input);
     coverIds(&r.planes.labels, input, from_motion);
     r.planes.pair_frame = kept[static_cast<size_t>(r.planes.pair_frame)] - still;  // from the reference frame
+    for (auto& c : r.planes.candidates) {
+      if (c.pair_frame >= 0) c.pair_frame = kept[static_cast<size_t>(c.pair_frame)] - still;
+      c.first_frame = kept[static_cast<size_t>(c.first_frame)] - still;
+    }
+    for (int& k : r.online.plane_first_frame)
+      if (k > 0) k = kept[static_cast<size_t>(k)];  // an index of the filled frames (the reference frame's planes: 0, every frame)
     for (auto& tr : r.planes.pair_frame_tries) tr.frame = kept[static_cast<size_t>(tr.frame)] - still;
     if (r.refined.ok) {
       fillStill(&r.refined.state, &r.refined.cov_motion, kept, input);

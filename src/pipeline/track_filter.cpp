@@ -1,5 +1,7 @@
 #include "rsfm/pipeline/track_filter.hpp"
 
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -146,6 +148,124 @@ TrackFrame frameOf(const RecursiveFilter<Model>& f, const FrameStats& fs, int fr
   return tf;
 }
 
+/// A late plane within this angle (deg) of a plane in the state, whose points lie on that plane
+/// within twice their scatter about their own fit plus this fraction of its distance, is that
+/// plane seen again: its tracks join it (TrackFilterOptions::late_planes).
+constexpr double kSamePlaneDeg = 3.0, kSamePlaneResidual = 0.02;
+
+/// A plane that joins mid-run (TrackFilterOptions::late_planes), triangulated at frame `now`.
+struct LateStart {
+  bool ok = false;    ///< N, cov_N, ids and ref are set
+  bool gone = false;  ///< fewer than the model's points of the plane are alive: it cannot join
+  Eigen::Vector3d N = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d cov_N = Eigen::Matrix3d::Zero();
+  std::vector<int> ids;                ///< its tracks alive now that transfer to the reference frame
+  std::vector<Eigen::Vector2d> ref;    ///< their reference positions
+  std::vector<Eigen::Vector3d> X;      ///< the triangulated points (reference frame)
+};
+
+/// Median |N . X - 1| over the points: their distances from plane N relative to its distance.
+double medianPlaneResidual(const Eigen::Vector3d& N, const std::vector<Eigen::Vector3d>& X) {
+  std::vector<double> r;
+  r.reserve(X.size());
+  for (const Eigen::Vector3d& x : X) r.push_back(std::abs(N.dot(x) - 1.0));
+  if (r.empty()) return 0.0;
+  std::nth_element(r.begin(), r.begin() + r.size() / 2, r.end());
+  return r[r.size() / 2];
+}
+
+/// N . X = 1 fitted to reference-frame points by least squares, twice: the second time without
+/// the points more than 3 robust sds (1.4826 MAD) off the first fit. False with fewer than the
+/// model's points left or points on a line (no plane).
+bool fitPlaneToPoints(const std::vector<Eigen::Vector3d>& X, Eigen::Vector3d* N, Eigen::Matrix3d* cov) {
+  std::vector<char> in(X.size(), 1);
+  std::vector<double> r(X.size());
+  for (int round = 0; round < 2; ++round) {
+    Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d b = Eigen::Vector3d::Zero();
+    int n = 0;
+    for (size_t i = 0; i < X.size(); ++i)
+      if (in[i]) {
+        A.noalias() += X[i] * X[i].transpose();
+        b += X[i];
+        ++n;
+      }
+    if (n < PlaneModel::kMinPoints) return false;
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(A);
+    if (es.info() != Eigen::Success || !(es.eigenvalues()[0] > 1e-12 * es.eigenvalues()[2])) return false;
+    const Eigen::Matrix3d Ai = es.eigenvectors() * es.eigenvalues().cwiseInverse().asDiagonal() * es.eigenvectors().transpose();
+    *N = Ai * b;
+    double ss = 0.0;
+    std::vector<double> a;
+    for (size_t i = 0; i < X.size(); ++i) {
+      r[i] = N->dot(X[i]) - 1.0;
+      if (in[i]) {
+        ss += r[i] * r[i];
+        a.push_back(std::abs(r[i]));
+      }
+    }
+    *cov = Ai * (ss / std::max(1, n - 3));
+    if (round == 1) break;
+    std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
+    const double limit = 3.0 * 1.4826 * a[a.size() / 2];
+    bool dropped = false;
+    for (size_t i = 0; i < X.size(); ++i)
+      if (in[i] && std::abs(r[i]) > limit && limit > 0.0) in[i] = 0, dropped = true;
+    if (!dropped) break;
+  }
+  return N->allFinite() && cov->allFinite();
+}
+
+/// Triangulates late plane `lp` from its tracks at its first frame (record `from`) and now
+/// (record `now`, frame index now.frame's): each track seen in both whose rays meet at more than
+/// `min_parallax` rad (3 tracking-noise sds) gives a point, and the plane is fitted to them. It
+/// needs the model's points, and half its tracks seen in both frames; then every track alive
+/// now is transferred to the reference frame through it.
+template <class UvOf>
+LateStart startLatePlane(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterOptions::LatePlane& lp,
+                         const std::vector<TrackSpan>& spans, int min_track_frames, const TrackFrame& from, int now_k,
+                         const TrackFrame& now, const UvOf& uvOf, double min_parallax) {
+  LateStart out;
+  std::vector<int>& alive = out.ids;  // every track of the plane alive now (transferLatePlane keeps those it can carry)
+  std::vector<Eigen::Vector3d> X;
+  int both = 0;
+  for (const TrackPoint& p : tracks.frames[static_cast<size_t>(now_k)]) {
+    if (p.id >= static_cast<int>(labels.size()) || labels[p.id] != lp.label || spans[p.id].length() < min_track_frames) continue;
+    alive.push_back(p.id);
+    const TrackPoint* pa = tracks.find(lp.first_frame, p.id);
+    if (!pa) continue;
+    ++both;
+    Eigen::Vector3d Xi;
+    if (PlaneModel::twoViewPoint(now.beta, from.R, from.t, uvOf(pa->px), now.R, now.t, uvOf(p.px), min_parallax, &Xi) ==
+        MeasureStatus::Ok)
+      X.push_back(Xi);
+  }
+  if (static_cast<int>(alive.size()) < PlaneModel::kMinPoints) {
+    out.gone = true;
+    return out;
+  }
+  if (2 * static_cast<int>(X.size()) < both || !fitPlaneToPoints(X, &out.N, &out.cov_N)) return out;
+  out.X = std::move(X);
+  out.ok = true;
+  (void)now_k;
+  return out;
+}
+
+/// Transfers the late plane's tracks alive now to the reference frame through plane N.
+template <class UvOf>
+void transferLatePlane(const Tracks& tracks, int now_k, const TrackFrame& now, const Eigen::Vector3d& N, const UvOf& uvOf,
+                       const std::vector<int>& alive, LateStart* ls) {
+  ls->ids.clear();
+  ls->ref.clear();
+  for (int id : alive) {
+    Eigen::Vector2d ref;
+    if (PlaneModel::transferToReference(N, now.beta, now.R, now.t, uvOf(tracks.find(now_k, id)->px), &ref) != MeasureStatus::Ok)
+      continue;
+    ls->ids.push_back(id);
+    ls->ref.push_back(ref);
+  }
+}
+
 }  // namespace
 
 TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterOptions& o,
@@ -279,10 +399,22 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
 
   // Plane models.
   int m = 1;
+  int m_all = 1;  // with the planes that join mid-run
   if (o.model == TrackModel::Planes) {
     m = 0;
     for (int id = 0, nid = tracks.idBound(); id < nid; ++id) m = std::max(m, labels[id] + 1);
     if (m == 0) throw std::invalid_argument("planes model: no track is labelled with a plane");
+    m_all = m;
+    m -= static_cast<int>(o.late_planes.size());
+    for (size_t i = 0; i < o.late_planes.size(); ++i)
+      if (o.late_planes[i].label != m + static_cast<int>(i) || o.late_planes[i].first_frame < 0 ||
+          o.late_planes[i].init_frame <= o.late_planes[i].first_frame || o.late_planes[i].init_frame >= F)
+        throw std::invalid_argument("estimate: late planes must carry the highest labels in order, with first_frame < init_frame < frames");
+    if (m < 1) throw std::invalid_argument("planes model: no plane in the reference frame");
+    if (!o.late_planes.empty() && o.filter.reference == ReferenceModel::State)
+      throw std::invalid_argument("estimate: planes added mid-run cannot be used with the reference positions in the state");
+  } else if (!o.late_planes.empty()) {
+    throw std::invalid_argument("estimate: planes added mid-run need the planes model");
   }
   std::vector<int> ref_count(m, 0);
   std::vector<int> ids;
@@ -355,19 +487,30 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     RecursiveFilter<PlaneModel> f(PlaneModel(ref, lab, m), Ekf(x0, P0, fixed), fo);
     std::vector<int> pidx(tracks.idBound(), -1);
     for (size_t i = 0; i < ids.size(); ++i) pidx[ids[i]] = static_cast<int>(i);
-    res.planes = m;
+    // The state's plane of each label: the reference planes' own, the late planes' once they join.
+    std::vector<int> plane_of(m_all, -1);
+    for (int j = 0; j < m; ++j) plane_of[j] = j;
+    std::vector<int> first_frame(m, 0);
+    std::vector<char> late_done(o.late_planes.size(), 0);
     res.plane_tracks = ref_count;
-    res.plane_new_tracks.assign(m, 0);
-    res.transfer_failed.assign(m, 0);
-    std::vector<double> sum2(m, 0.0);
-    std::vector<long> cnt(m, 0);
+    res.plane_tracks.resize(m_all, 0);
+    res.plane_new_tracks.assign(m_all, 0);
+    res.transfer_failed.assign(m_all, 0);
+    std::vector<double> sum2(m_all, 0.0);
+    std::vector<long> cnt(m_all, 0);
+    auto recordPlane = [&](TrackFrame* tf, int j) {
+      const int b = PlaneModel::planeIndex(j);
+      tf->N.push_back(f.ekf().x().segment<3>(b));
+      tf->cov_N.push_back(f.ekf().P().block<3, 3>(b, b));
+      tf->cov_beta_N.push_back(f.ekf().P().block<1, 3>(idx::kBeta, b).transpose());
+    };
     auto recordPlanes = [&](TrackFrame* tf) {
-      for (int j = 0; j < m; ++j) {
-        const int b = PlaneModel::planeIndex(j);
-        tf->N.push_back(f.ekf().x().segment<3>(b));
-        tf->cov_N.push_back(f.ekf().P().block<3, 3>(b, b));
-        tf->cov_beta_N.push_back(f.ekf().P().block<1, 3>(idx::kBeta, b).transpose());
-      }
+      for (int j = 0; j < f.model().numPlanes(); ++j) recordPlane(tf, j);
+    };
+    // A track that may enter the filter now: labelled with a plane in the state, long enough.
+    auto enters = [&](int id) {
+      const int l = labels[id];
+      return l >= 0 && l < m_all && plane_of[l] >= 0 && spans[id].length() >= o.min_track_frames;
     };
     TrackFrame t0;
     t0.frame = tracks.frameNumber(0);
@@ -382,7 +525,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       for (const auto& p : tracks.frames[k])
         if (pidx[p.id] >= 0) {
           obs.push_back({pidx[p.id], uvOf(p.px)});
-          grp.push_back(labels[p.id]);
+          grp.push_back(plane_of[labels[p.id]]);
         }
       const FrameStats& fs = f.step(obs);
       if (k >= kMinFramesBeforeEnd && ranOut(fs, PlaneModel::kMinPoints)) {
@@ -395,14 +538,70 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       recordPlanes(&tf);
       accumulateResiduals(f, obs, fs, grp, s, &sum2, &cnt, &tf.rms_px);
       res.frames.push_back(tf);
+      // Planes that join mid-run (TrackFilterOptions::late_planes; docs/estimate.md section 3).
+      for (size_t i = 0; i < o.late_planes.size(); ++i) {
+        const TrackFilterOptions::LatePlane& lp = o.late_planes[i];
+        if (late_done[i] || k < lp.init_frame) continue;
+        // A ray's direction is known to ~sigma / f rad: a point needs 3 such sds of parallax.
+        LateStart ls = startLatePlane(tracks, labels, lp, spans, o.min_track_frames,
+                                            res.frames[static_cast<size_t>(lp.first_frame)], k, tf, uvOf,
+                                            3.0 * o.sigma_px * tf.beta / s);
+        if (ls.gone) {
+          late_done[i] = 1;  // its tracks ended before it could be triangulated
+          continue;
+        }
+        if (!ls.ok) continue;  // too little parallax yet: tried again next frame
+        late_done[i] = 1;
+        const std::vector<int> alive = ls.ids;
+        // A plane in the state seen again (its tracks lost, new ones found on it later): the
+        // late plane's points lie on it as well as on their own fit, and the normals agree.
+        {
+          const double own = medianPlaneResidual(ls.N, ls.X);
+          const Eigen::Vector3d n_new = metricPlane(ls.N, tf.beta).n;
+          int same = -1;
+          for (int j = 0; j < f.model().numPlanes() && same < 0; ++j) {
+            const Eigen::Vector3d Nj = f.ekf().x().segment<3>(PlaneModel::planeIndex(j));
+            const double cosang = std::abs(metricPlane(Nj, tf.beta).n.dot(n_new));
+            if (cosang > std::cos(kSamePlaneDeg * M_PI / 180.0) && medianPlaneResidual(Nj, ls.X) <= 2.0 * own + kSamePlaneResidual)
+              same = j;
+          }
+          if (same >= 0) {
+            transferLatePlane(tracks, k, tf, f.ekf().x().segment<3>(PlaneModel::planeIndex(same)), uvOf, alive, &ls);
+            plane_of[lp.label] = same;
+            for (size_t q = 0; q < ls.ids.size(); ++q) {
+              pidx[ls.ids[q]] = f.mutableModel().addPoint(ls.ref[q], same);
+              ++res.plane_tracks[same];
+              ++res.plane_new_tracks[same];
+            }
+            continue;
+          }
+        }
+        transferLatePlane(tracks, k, tf, ls.N, uvOf, alive, &ls);
+        if (static_cast<int>(ls.ids.size()) < PlaneModel::kMinPoints) continue;  // its tracks cannot be carried: left out
+        if (f.ekf().size() != PlaneModel::planeIndex(f.model().numPlanes()))
+          throw std::logic_error("runTrackFilter: a plane can only join a state of motion and planes");
+        const int j = f.mutableModel().addPlane();
+        const double sd = TrackFilterOptions::kLatePlaneSd0 * ls.N.norm();
+        Eigen::Matrix3d P_new = 4.0 * ls.cov_N;
+        P_new.diagonal().array() += sd * sd;
+        f.mutableEkf().augment(ls.N, P_new, Eigen::MatrixXd::Zero(3, f.ekf().size()), false);
+        plane_of[lp.label] = j;
+        first_frame.push_back(k);
+        for (size_t q = 0; q < ls.ids.size(); ++q) {
+          pidx[ls.ids[q]] = f.mutableModel().addPoint(ls.ref[q], j);
+          ++res.plane_tracks[j];
+          ++res.plane_new_tracks[j];
+        }
+        recordPlane(&res.frames.back(), j);
+      }
       // Tracks born in this frame join their plane, transferred to the reference frame.
       if (o.add_new_tracks) {
-        std::vector<int> live(m, 0);  // points of each plane observed in this frame
+        std::vector<int> live(m_all, 0);  // points of each plane observed in this frame
         for (const auto& p : tracks.frames[k])
-          if (pidx[p.id] >= 0) ++live[labels[p.id]];
+          if (pidx[p.id] >= 0) ++live[plane_of[labels[p.id]]];
         for (const auto& p : tracks.frames[k]) {
-          if (spans[p.id].first != k || !usable(p.id, m)) continue;
-          const int j = labels[p.id];
+          if (spans[p.id].first != k || pidx[p.id] >= 0 || !enters(p.id)) continue;
+          const int j = plane_of[labels[p.id]];
           if (o.max_tracks_per_plane > 0 && live[j] >= o.max_tracks_per_plane) continue;
           ++live[j];
           Eigen::Vector2d uv_ref;
@@ -418,8 +617,23 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       }
       if (progress) progress((pass - 1) * F + k + 1, o.passes * F);
     }
-    res.plane_rms_px.resize(m);
-    for (int j = 0; j < m; ++j) res.plane_rms_px[j] = cnt[j] ? std::sqrt(sum2[j] / cnt[j]) : 0.0;
+    const int planes_in = f.model().numPlanes();
+    res.planes = planes_in;
+    res.plane_of_label = plane_of;
+    res.plane_first_frame = first_frame;
+    res.plane_tracks.resize(planes_in);
+    res.plane_new_tracks.resize(planes_in);
+    res.transfer_failed.resize(planes_in);
+    // Frames before a late plane joined repeat its value there (TrackFilterResult::plane_first_frame).
+    for (TrackFrame& fr : res.frames)
+      for (int j = static_cast<int>(fr.N.size()); j < planes_in; ++j) {
+        const TrackFrame& at = res.frames[static_cast<size_t>(first_frame[j])];
+        fr.N.push_back(at.N[j]);
+        fr.cov_N.push_back(at.cov_N[j]);
+        fr.cov_beta_N.push_back(at.cov_beta_N[j]);
+      }
+    res.plane_rms_px.resize(planes_in);
+    for (int j = 0; j < planes_in; ++j) res.plane_rms_px[j] = cnt[j] ? std::sqrt(sum2[j] / cnt[j]) : 0.0;
     res.passes = pass;
     if (!res.ok()) break;
     const TrackFrame& fin = res.frames.back();
@@ -427,7 +641,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     res.pass_N.push_back(fin.N);
     if (last_pass) break;
     beta_start = known_focal ? beta0 : fin.beta;
-    N_start = fin.N;
+    N_start.assign(fin.N.begin(), fin.N.begin() + m);  // the late planes join again where they did
   }
   return res;
 }

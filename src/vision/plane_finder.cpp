@@ -19,6 +19,8 @@ const char* toString(PlaneVerdict v) {
     case PlaneVerdict::Static: return "static";
     case PlaneVerdict::OtherMotion: return "other-motion";
     case PlaneVerdict::TooFew: return "too-few";
+    case PlaneVerdict::NotTriangulated: return "not-triangulated";
+    case PlaneVerdict::Rejoined: return "rejoined";
   }
   return "?";
 }
@@ -268,8 +270,10 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
   for (int id : ref_ids)
     if (moves[id]) movers.push_back(id);
   if (static_cast<int>(movers.size()) < 2 * o.min_plane_tracks) movers.clear();
+  // Pair frames are chosen up to this frame (PlaneFinderOptions::last_pair_frame).
+  const int F_pair = o.last_pair_frame > 0 ? std::min(F, o.last_pair_frame + 1) : F;
   int pair = 1;
-  for (int k = 1; k < F; ++k) {
+  for (int k = 1; k < F_pair; ++k) {
     int alive = 0, alive_movers = 0;
     for (int id : ref_ids) alive += tracks.find(k, id) != nullptr;
     for (int id : movers) alive_movers += tracks.find(k, id) != nullptr;
@@ -505,7 +509,7 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
       std::vector<double> motion(F, NAN), d;
       double most = 0.0;
       int k_most = -1;
-      for (int k = 1; k < F; ++k) {
+      for (int k = 1; k < F_pair; ++k) {
         d.clear();
         for (int id : who)
           if (const TrackPoint* pk = tracks.find(k, id)) d.push_back((pk->px - tracks.find(0, id)->px).norm());

@@ -45,6 +45,20 @@ class PlaneModel {
 
   /// Adds a point seen first at `ref_uv` (reference-frame normalized coordinates) on `plane`.
   int addPoint(const Eigen::Vector2d& ref_uv, int plane);
+  /// Appends a plane, whose N the caller appends to the state at planeIndex(the returned index)
+  /// (a plane that enters mid-run, TrackFilterOptions::late_planes).
+  int addPlane() { return planes_++; }
+
+  /// The reference-frame point ([AS99] eq. 6: X_C = t + R X) seen at `uv_a` by camera a and at
+  /// `uv_b` by camera b (motions (R, t) from the reference frame, scene units; focal beta): the
+  /// midpoint of the two rays' closest approach. Camera k's ray through uv is
+  /// X_C(l) = (u, v, 0) + l (beta u, beta v, 1), its centre at l = -1/beta. HorizonSingular when
+  /// the rays meet at an angle below `min_parallax_rad` (no depth), BehindCamera when the closest
+  /// points are behind either centre. `parallax_rad` (may be null) receives the angle.
+  static MeasureStatus twoViewPoint(double beta, const Eigen::Matrix3d& Ra, const Eigen::Vector3d& ta,
+                                    const Eigen::Vector2d& uv_a, const Eigen::Matrix3d& Rb, const Eigen::Vector3d& tb,
+                                    const Eigen::Vector2d& uv_b, double min_parallax_rad, Eigen::Vector3d* X,
+                                    double* parallax_rad = nullptr);
 
   /// Validity of plane N for the ray through uv1 (see the class comment).
   static MeasureStatus checkRay(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv1);

@@ -56,7 +56,22 @@ struct EstimateOptions {
   /// KLT tracks jitter by 0.02 px over its 16 still frames, its first moving frame moved 0.3 px.
   /// <= 0: the first frame is the reference and nothing is held.
   double still_px = 0.25;
+  /// Planes model: planes that come into view later join the filter (findLatePlanes,
+  /// docs/estimate.md section 1, "Planes added mid-run"). false: only the reference frame's.
+  bool late_planes = true;
 };
+
+/// Planes that come into view after the reference frame (docs/estimate.md section 1): when the
+/// tracks on the planes found so far thin out (fewer than 2 x kHomographyTestTracks alive after
+/// frame K_end), the finder searches the tracks no plane holds, with the reference frame K
+/// before K_end where most of them are alive at both K and K_end, and its pair frames at or
+/// before K_end: the new planes' homographies are seen while the planes in hand are still
+/// tracked, so the filter can place them (TrackFilterOptions::late_planes). Repeated from the
+/// new K_end until the planes are tracked to the end or none is found. Accepted planes get the
+/// next labels in `pf` (their candidates appended, first_frame set, H and support empty: the
+/// homographies were from frame K). Returns the filter's list, frame indices of `tracks`.
+std::vector<TrackFilterOptions::LatePlane> findLatePlanes(const Tracks& tracks, vision::PlaneFinding* pf,
+                                                         const vision::PlaneFinderOptions& options);
 
 struct EstimateResult {
   /// The still frames: the stages below ran on the tracks from frame still.still_frames (the

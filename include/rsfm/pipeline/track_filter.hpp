@@ -43,6 +43,9 @@ struct TrackFilterOptions {
   std::optional<double> normal_sd0;
   /// The values used when beta_sd0 / normal_sd0 are unset and no start set them.
   static constexpr double kGuessBetaSd0 = 0.3, kFrontalNormalSd0 = 1.0;
+  /// A plane that joins mid-run starts with the sd of its triangulated fit, doubled, and this
+  /// relative sd of |N| per component on top (as a homography start's normal_sd0).
+  static constexpr double kLatePlaneSd0 = 0.1;
   /// Scale gauge and start: every plane starts frontal, meeting the optical axis depth0 / beta0
   /// beyond the image plane (N = (0, 0, beta0 / depth0)); plane 0's N_Z stays fixed there.
   double depth0 = 10.0;
@@ -88,6 +91,19 @@ struct TrackFilterOptions {
   /// (docs/estimate.md). 1 = purely recursive.
   int passes = 2;
   bool add_new_tracks = true;  ///< plane models: later tracks join by transfer
+  /// Planes model: planes that enter the filter after the reference frame (docs/estimate.md
+  /// section 3, "Planes added mid-run"). Their labels are the highest (after every reference
+  /// plane's) and in this order. Plane `label` is triangulated at frame index `init_frame` from
+  /// its member tracks' positions there and at `first_frame` (index), through the filter's two
+  /// poses; failing that (too few tracks in front of both cameras, too little parallax) at each
+  /// later frame, until its tracks are gone. It then joins the state (N appended, its prior
+  /// uncorrelated with the rest) and its tracks join as later tracks do (transferred).
+  struct LatePlane {
+    int label = -1;
+    int first_frame = 0;  ///< frame index of its search's reference frame
+    int init_frame = 0;   ///< frame index from which it is triangulated (its search's pair frame)
+  };
+  std::vector<LatePlane> late_planes;
   /// Plane models: at most this many tracks per plane in the filter at a time (the longest-lived
   /// reference tracks; later tracks join while a plane has fewer live ones). <= 0: all. Beyond a
   /// few dozen well-spread points a plane gains little accuracy, while every extra point adds
@@ -139,6 +155,15 @@ struct TrackFilterResult {
   std::vector<int> plane_new_tracks; ///< of which joined after the reference frame
   std::vector<double> plane_rms_px;  ///< posterior reprojection RMS per plane over all frames (px)
   std::vector<int> transfer_failed;  ///< later tracks whose transfer failed, per plane
+  /// Planes model: the state's plane of each label (labels of TrackFilterOptions::late_planes
+  /// in the order they joined; -1: a late plane that never could be triangulated, its tracks
+  /// unused). Plane j's entries everywhere in this result (N per frame, plane_tracks, ...) are
+  /// the state's plane j.
+  std::vector<int> plane_of_label;
+  /// Per plane: the frame index from which the filter estimates it (0: a reference-frame plane).
+  /// frames[k].N[j] for k before it repeats its value at that frame (not an estimate: the plane
+  /// was not yet in the state).
+  std::vector<int> plane_first_frame;
   std::string stopped;               ///< empty unless the filter failed (numerical trouble, beta <= 0, the gate): why
   /// Non-empty when the tracks on the planes ran out before the last frame (after at least 10
   /// frames): the result covers the frames before it and is valid (ok()); this says where and why.

@@ -41,6 +41,10 @@ struct PlaneFinderOptions {
   double same_motion_fraction = 0.6; ///< fraction of a plane's parallax tracks that must agree
   int min_new_track_frames = 5;      ///< later tracks shorter than this are left out
   bool reject_static = true;         ///< reject planes that do not move in the image
+  /// The pair frames are chosen at or before this frame index (<= 0: any). The search for
+  /// planes that join mid-run uses it: their homographies must be seen while the planes already
+  /// in the filter are still tracked (pipeline/estimate.hpp).
+  int last_pair_frame = 0;
   /// Manual override: one polygon per plane in reference-frame pixels. Reference tracks inside
   /// polygon j belong to plane j (first polygon wins); no RANSAC search, no motion test.
   std::vector<std::vector<cv::Point2f>> rois;
@@ -68,7 +72,10 @@ double trackNoisePx(const Tracks& tracks);
 PlaneTolerances planeTolerances(const PlaneFinderOptions& options, double noise_px, int frames);
 
 /// Why a candidate plane was kept or not.
-enum class PlaneVerdict { Accepted, Static, OtherMotion, TooFew };
+/// Planes that came into view later (pipeline/estimate.hpp findLatePlanes): NotTriangulated,
+/// its tracks never gave the filter the parallax to place it (they are outliers); Rejoined, it
+/// is a plane the filter already has, seen again: its tracks joined that plane (its label).
+enum class PlaneVerdict { Accepted, Static, OtherMotion, TooFew, NotTriangulated, Rejoined };
 const char* toString(PlaneVerdict v);
 
 struct FoundPlane {
@@ -80,6 +87,7 @@ struct FoundPlane {
   double median_motion_px = 0.0;      ///< largest median member displacement from the reference
   double same_motion_fraction = -1;   ///< plane+parallax agreement with the main plane (-1: main/untested)
   int pair_frame = -1;                ///< the frame of the RANSAC pair it was found at (-1: manual ROI)
+  int first_frame = 0;                ///< its reference frame: 0, or a later one for a plane that came into view later
 };
 
 struct PlaneFinding {
