@@ -158,6 +158,9 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--plane-roi", e->plane_rois,
                 "manual planes: one polygon per plane in first-frame px, x,y,x,y,...;x,y,... (skips RANSAC)");
   a->add_flag("!--keep-static", e->est.finder.reject_static, "keep planes that do not move in the image");
+  a->add_flag("!--no-late-planes", e->est.late_planes,
+              "--model planes: only the reference frame's planes (no search for planes that come into view later, "
+              "docs/estimate.md section 1)");
   a->add_flag("!--no-plots", e->plots, "skip the PNG/SVG plots");
   a->add_flag("!--no-init", e->est.homography_start, "start every plane frontal at the default focal guess (no homography start)");
   a->add_option("--max-tracks-per-plane", f.max_tracks_per_plane, "tracks per plane in the filter at a time (0: all)")

@@ -123,6 +123,16 @@ TEST(Pipeline, LibraryCallGivesTheCliNumbers) {
     EXPECT_NEAR(mn["sigma_px"].get<double>(), 0.5, 0.05) << mn.dump();
     EXPECT_EQ(mn["floor_px"].get<double>(), TrackFilterOptions{}.sigma_px);
     EXPECT_EQ(mn["from_tracking_noise"].get<bool>(), lib.filter_used.sigma_px > TrackFilterOptions{}.sigma_px);
+    // Each plane's first frame (every plane of the reference frame: the reference frame) and each
+    // candidate's search frames (summary.json plane_finding).
+    const auto& pf = cli.summary["plane_finding"];
+    ASSERT_EQ(pf["planes_estimated_from_frame"].size(), static_cast<size_t>(lib.online.planes));
+    const int reference = cli.summary["still_start"]["reference_frame"].get<int>();
+    for (const auto& k : pf["planes_estimated_from_frame"]) EXPECT_EQ(k.get<int>(), reference);
+    for (const auto& c : pf["candidates"]) {
+      EXPECT_EQ(c["reference_frame"].get<int>(), reference) << c.dump();
+      EXPECT_EQ(c["pair_frame"].get<int>(), pf["pair_frame"].get<int>()) << c.dump();
+    }
   }
   {
     // Options that change the start-dependent defaults and the filter.
