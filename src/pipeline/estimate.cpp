@@ -468,6 +468,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
     }
     for (int& k : r.online.plane_first_frame)
       if (k > 0) k = kept[static_cast<size_t>(k)];  // an index of the filled frames (the reference frame's planes: 0, every frame)
+    if (r.refined.ok) r.refined.state.plane_first_frame = r.online.plane_first_frame;
     for (auto& tr : r.planes.pair_frame_tries) tr.frame = kept[static_cast<size_t>(tr.frame)] - still;
     if (r.refined.ok) {
       fillStill(&r.refined.state, &r.refined.cov_motion, kept, input);

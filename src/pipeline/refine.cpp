@@ -786,6 +786,8 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     tf.rms_px = frame_n[k] ? std::sqrt(frame_ss[k] / (2.0 * frame_n[k])) : 0.0;
     out.frames.push_back(tf);
   }
+  out.plane_of_label = online.plane_of_label;
+  out.plane_first_frame = online.plane_first_frame;  // where the filter placed each plane (one that came into view later)
   out.passes = 1;
   out.pass_focal_px = {f};
   out.pass_N = {st.N};

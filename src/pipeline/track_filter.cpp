@@ -247,7 +247,6 @@ LateStart startLatePlane(const Tracks& tracks, const std::vector<int>& labels, c
   if (2 * static_cast<int>(X.size()) < both || !fitPlaneToPoints(X, &out.N, &out.cov_N)) return out;
   out.X = std::move(X);
   out.ok = true;
-  (void)now_k;
   return out;
 }
 

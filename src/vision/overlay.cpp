@@ -25,18 +25,33 @@ cv::Scalar colourOf(int label) {
   return kColours[label % 5];
 }
 
-/// Grid nodes of plane j: a 9x9 grid over the bounding box of the plane's reference tracks,
-/// back-projected onto the plane (reference frame, A&P coordinates, [AS99] eq. 12) with the final
-/// estimate.
+/// Grid nodes of plane j: a 9x9 grid over the bounding box of the plane's tracks in the reference
+/// frame, back-projected onto the plane (reference frame, A&P coordinates, [AS99] eq. 12) with the
+/// final estimate: its reference-frame tracks, or for a plane with fewer than 3 there (one that
+/// came into view later) all its tracks, each carried back from its first frame through the plane
+/// and that frame's pose (PlaneModel::transferToReference).
 std::vector<std::vector<Eigen::Vector3d>> planeGrid(const Tracks& tracks, const std::vector<int>& labels, int j,
-                                                    const TrackFrame& fin, double s) {
-  // The grid spans the 5th to 95th percentiles of the plane's reference tracks, so that a few
-  // stray members do not stretch it.
+                                                    const TrackFilterResult& result, double s) {
+  const TrackFrame& fin = result.frames.back();
+  // The grid spans the 5th to 95th percentiles of the plane's tracks, so that a few stray
+  // members do not stretch it.
   std::vector<double> xs, ys;
-  for (const auto& p : tracks.frames[0])
-    if (p.id < static_cast<int>(labels.size()) && labels[p.id] == j) {
-      xs.push_back(p.px.x());
-      ys.push_back(p.px.y());
+  std::vector<char> seen(labels.size(), 0);
+  // The reference frame's tracks; a plane with too few there (one that came into view later):
+  // every track of it, from its first frame.
+  const int frames = std::min(tracks.numFrames(), static_cast<int>(result.frames.size()));
+  int with_reference = 0;
+  for (const auto& p : tracks.frames[0]) with_reference += p.id < static_cast<int>(labels.size()) && labels[p.id] == j;
+  for (int k = 0; k < (with_reference >= 3 ? 1 : frames); ++k)
+    for (const auto& p : tracks.frames[static_cast<size_t>(k)]) {
+      if (p.id >= static_cast<int>(labels.size()) || labels[p.id] != j || seen[p.id]) continue;
+      seen[p.id] = 1;
+      const Eigen::Vector2d uv((p.px.x() - tracks.image.cx) / s, (p.px.y() - tracks.image.cy) / s);
+      Eigen::Vector2d ref = uv;
+      const TrackFrame& f = result.frames[static_cast<size_t>(k)];
+      if (k > 0 && PlaneModel::transferToReference(fin.N[j], f.beta, f.R, f.t, uv, &ref) != MeasureStatus::Ok) continue;
+      xs.push_back(ref.x());
+      ys.push_back(ref.y());
     }
   const int n = static_cast<int>(xs.size());
   if (n < 3) return {};
@@ -48,8 +63,7 @@ std::vector<std::vector<Eigen::Vector3d>> planeGrid(const Tracks& tracks, const 
   g.assign(G, std::vector<Eigen::Vector3d>(G, Eigen::Vector3d::Constant(std::nan(""))));
   for (int a = 0; a < G; ++a)
     for (int b = 0; b < G; ++b) {
-      const Eigen::Vector2d px(x0 + (x1 - x0) * b / (G - 1), y0 + (y1 - y0) * a / (G - 1));
-      const Eigen::Vector2d uv((px.x() - tracks.image.cx) / s, (px.y() - tracks.image.cy) / s);
+      const Eigen::Vector2d uv(x0 + (x1 - x0) * b / (G - 1), y0 + (y1 - y0) * a / (G - 1));
       Eigen::Vector3d X;
       if (PlaneModel::point(fin.N[j], fin.beta, uv, &X, nullptr, nullptr) == MeasureStatus::Ok) g[a][b] = X;
     }
@@ -104,7 +118,7 @@ OverlayInfo writeOverlay(const std::string& input, FrameRange range, const Track
   const double s = result.scale_px;
   const TrackFrame& fin = result.frames.back();
   std::vector<std::vector<std::vector<Eigen::Vector3d>>> grids;
-  for (int j = 0; j < static_cast<int>(fin.N.size()); ++j) grids.push_back(planeGrid(tracks, labels, j, fin, s));
+  for (int j = 0; j < static_cast<int>(fin.N.size()); ++j) grids.push_back(planeGrid(tracks, labels, j, result, s));
   cv::VideoWriter vw;
   OverlayInfo info;
   cv::Mat img, bgr;
@@ -123,6 +137,8 @@ OverlayInfo writeOverlay(const std::string& input, FrameRange range, const Track
     for (size_t j = 0; j < grids.size(); ++j) {
       const auto& g = grids[j];
       if (g.empty()) continue;
+      // A plane that came into view later is drawn from the frame it joined the filter.
+      if (j < result.plane_first_frame.size() && static_cast<int>(fi) < result.plane_first_frame[j]) continue;
       auto proj = [&](const Eigen::Vector3d& X, cv::Point2f* q) {
         if (!X.allFinite()) return false;
         const Eigen::Vector3d Xc = tf.t + tf.R * X;
