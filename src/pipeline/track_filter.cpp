@@ -558,11 +558,14 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
           const double own = medianPlaneResidual(ls.N, ls.X);
           const Eigen::Vector3d n_new = metricPlane(ls.N, tf.beta).n;
           int same = -1;
-          for (int j = 0; j < f.model().numPlanes() && same < 0; ++j) {
+          double same_residual = 0.0;
+          for (int j = 0; j < f.model().numPlanes(); ++j) {  // the closest of those that pass
             const Eigen::Vector3d Nj = f.ekf().x().segment<3>(PlaneModel::planeIndex(j));
             const double cosang = std::abs(metricPlane(Nj, tf.beta).n.dot(n_new));
-            if (cosang > std::cos(kSamePlaneDeg * M_PI / 180.0) && medianPlaneResidual(Nj, ls.X) <= 2.0 * own + kSamePlaneResidual)
-              same = j;
+            const double residual = medianPlaneResidual(Nj, ls.X);
+            if (cosang > std::cos(kSamePlaneDeg * M_PI / 180.0) && residual <= 2.0 * own + kSamePlaneResidual &&
+                (same < 0 || residual < same_residual))
+              same = j, same_residual = residual;
           }
           if (same >= 0) {
             transferLatePlane(tracks, k, tf, f.ekf().x().segment<3>(PlaneModel::planeIndex(same)), uvOf, alive, &ls);
