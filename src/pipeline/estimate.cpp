@@ -203,8 +203,7 @@ std::vector<TrackFilterOptions::LatePlane> findLatePlanes(const Tracks& tracks, 
     if (accepted.empty()) break;
     after = K + 1;  // the next search starts after this one's reference frame
   }
-  // The filter takes them in the order their triangulation may start.
-  return late;
+  return late;  // in label order; the filter places each from its init_frame on
 }
 
 EstimateResult estimate(const Tracks& input, const EstimateOptions& o,

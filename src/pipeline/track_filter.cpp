@@ -155,11 +155,12 @@ constexpr double kSamePlaneDeg = 3.0, kSamePlaneResidual = 0.02;
 
 /// A plane that joins mid-run (TrackFilterOptions::late_planes), triangulated at frame `now`.
 struct LateStart {
-  bool ok = false;    ///< N, cov_N, ids and ref are set
+  bool ok = false;    ///< N, cov_N and X are set
   bool gone = false;  ///< fewer than the model's points of the plane are alive: it cannot join
   Eigen::Vector3d N = Eigen::Vector3d::Zero();
   Eigen::Matrix3d cov_N = Eigen::Matrix3d::Zero();
-  std::vector<int> ids;                ///< its tracks alive now that transfer to the reference frame
+  std::vector<int> alive;              ///< its tracks alive now
+  std::vector<int> ids;                ///< of those, the ones transferLatePlane carried to the reference frame
   std::vector<Eigen::Vector2d> ref;    ///< their reference positions
   std::vector<Eigen::Vector3d> X;      ///< the triangulated points (reference frame)
 };
@@ -226,7 +227,7 @@ LateStart startLatePlane(const Tracks& tracks, const std::vector<int>& labels, c
                          const std::vector<TrackSpan>& spans, int min_track_frames, const TrackFrame& from, int now_k,
                          const TrackFrame& now, const UvOf& uvOf, double min_parallax) {
   LateStart out;
-  std::vector<int>& alive = out.ids;  // every track of the plane alive now (transferLatePlane keeps those it can carry)
+  std::vector<int>& alive = out.alive;
   std::vector<Eigen::Vector3d> X;
   int both = 0;
   for (const TrackPoint& p : tracks.frames[static_cast<size_t>(now_k)]) {
@@ -250,13 +251,14 @@ LateStart startLatePlane(const Tracks& tracks, const std::vector<int>& labels, c
   return out;
 }
 
-/// Transfers the late plane's tracks alive now to the reference frame through plane N.
+/// Transfers the late plane's tracks alive now to the reference frame through plane N (into
+/// ls->ids and ls->ref).
 template <class UvOf>
 void transferLatePlane(const Tracks& tracks, int now_k, const TrackFrame& now, const Eigen::Vector3d& N, const UvOf& uvOf,
-                       const std::vector<int>& alive, LateStart* ls) {
+                       LateStart* ls) {
   ls->ids.clear();
   ls->ref.clear();
-  for (int id : alive) {
+  for (int id : ls->alive) {
     Eigen::Vector2d ref;
     if (PlaneModel::transferToReference(N, now.beta, now.R, now.t, uvOf(tracks.find(now_k, id)->px), &ref) != MeasureStatus::Ok)
       continue;
@@ -506,6 +508,12 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     auto recordPlanes = [&](TrackFrame* tf) {
       for (int j = 0; j < f.model().numPlanes(); ++j) recordPlane(tf, j);
     };
+    // A track that joins plane j after the reference frame, at reference position `ref`.
+    auto join = [&](int id, const Eigen::Vector2d& ref, int j) {
+      pidx[id] = f.mutableModel().addPoint(ref, j);
+      ++res.plane_tracks[j];
+      ++res.plane_new_tracks[j];
+    };
     // A track that may enter the filter now: labelled with a plane in the state, long enough.
     auto enters = [&](int id) {
       const int l = labels[id];
@@ -551,7 +559,6 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
         }
         if (!ls.ok) continue;  // too little parallax yet: tried again next frame
         late_done[i] = 1;
-        const std::vector<int> alive = ls.ids;
         // A plane in the state seen again (its tracks lost, new ones found on it later): the
         // late plane's points lie on it as well as on their own fit, and the normals agree.
         {
@@ -568,17 +575,13 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
               same = j, same_residual = residual;
           }
           if (same >= 0) {
-            transferLatePlane(tracks, k, tf, f.ekf().x().segment<3>(PlaneModel::planeIndex(same)), uvOf, alive, &ls);
+            transferLatePlane(tracks, k, tf, f.ekf().x().segment<3>(PlaneModel::planeIndex(same)), uvOf, &ls);
             plane_of[lp.label] = same;
-            for (size_t q = 0; q < ls.ids.size(); ++q) {
-              pidx[ls.ids[q]] = f.mutableModel().addPoint(ls.ref[q], same);
-              ++res.plane_tracks[same];
-              ++res.plane_new_tracks[same];
-            }
+            for (size_t q = 0; q < ls.ids.size(); ++q) join(ls.ids[q], ls.ref[q], same);
             continue;
           }
         }
-        transferLatePlane(tracks, k, tf, ls.N, uvOf, alive, &ls);
+        transferLatePlane(tracks, k, tf, ls.N, uvOf, &ls);
         if (static_cast<int>(ls.ids.size()) < PlaneModel::kMinPoints) continue;  // its tracks cannot be carried: left out
         if (f.ekf().size() != PlaneModel::planeIndex(f.model().numPlanes()))
           throw std::logic_error("runTrackFilter: a plane can only join a state of motion and planes");
@@ -589,11 +592,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
         f.mutableEkf().augment(ls.N, P_new, Eigen::MatrixXd::Zero(3, f.ekf().size()), false);
         plane_of[lp.label] = j;
         first_frame.push_back(k);
-        for (size_t q = 0; q < ls.ids.size(); ++q) {
-          pidx[ls.ids[q]] = f.mutableModel().addPoint(ls.ref[q], j);
-          ++res.plane_tracks[j];
-          ++res.plane_new_tracks[j];
-        }
+        for (size_t q = 0; q < ls.ids.size(); ++q) join(ls.ids[q], ls.ref[q], j);
         recordPlane(&res.frames.back(), j);
       }
       // Tracks born in this frame join their plane, transferred to the reference frame.
@@ -612,9 +611,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
             ++res.transfer_failed[j];
             continue;
           }
-          pidx[p.id] = f.mutableModel().addPoint(uv_ref, j);
-          ++res.plane_tracks[j];
-          ++res.plane_new_tracks[j];
+          join(p.id, uv_ref, j);
         }
       }
       if (progress) progress((pass - 1) * F + k + 1, o.passes * F);

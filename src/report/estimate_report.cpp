@@ -316,8 +316,10 @@ std::string tumText(const TrackFilterResult& res, const ImageInfo& image) {
 }
 
 /// planes.csv rows of one frame's estimate (`estimate`: online or refined).
-/// `planes_in`: planes estimated in this frame (those after it joined later: no row; -1: all).
-std::string planeRows(const TrackFrame& f, double scale_px, const char* estimate, int planes_in = -1) {
+/// `online` (may be null): the run frame `f` is frame index `k` of; a plane it had not yet
+/// estimated there (one that came into view later) gets no row.
+std::string planeRows(const TrackFrame& f, double scale_px, const char* estimate, const TrackFilterResult* online = nullptr,
+                      int k = 0) {
   const double bsd = std::sqrt(std::max(0.0, f.var_beta));
   const double focal = scale_px / f.beta, fsd = scale_px * bsd / (f.beta * f.beta);
   // The prediction's process noise of an online frame after the first (NA: the reference frame,
@@ -330,7 +332,7 @@ std::string planeRows(const TrackFrame& f, double scale_px, const char* estimate
                        num(focal, 3), num(fsd, 3), f.used, f.gated, rms, estimate, qw, qt);
   std::string out;
   for (size_t p = 0; p < f.N.size(); ++p) {
-    if (planes_in >= 0 && static_cast<int>(p) >= planes_in) break;
+    if (online && !online->planeEstimatedAt(static_cast<int>(p), k)) continue;
     const MetricPlane mp = metricPlane(f.N[p], f.beta, covBetaN(f, static_cast<int>(p)));
     out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, p, num(mp.n.x()), num(mp.n.y()),
                        num(mp.n.z()), num(mp.sd_angle_deg, 4), num(mp.d), num(mp.sd_d), num(f.beta), num(bsd),
@@ -390,14 +392,8 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
   std::string pc =
       "frame,plane,nx,ny,nz,normal_sd_deg,distance,distance_sd,beta,beta_sd,focal_px,focal_sd_px,used,gated,rms_px,estimate,"
       "q_omega_sd_deg,q_trans_sd_rel\n";
-  for (std::size_t k = 0; k < online.frames.size(); ++k) {
-    // A plane that joined later (TrackFilterResult::plane_first_frame) has rows from there on.
-    int planes_in = 0;
-    while (planes_in < static_cast<int>(online.plane_first_frame.size()) &&
-           online.plane_first_frame[static_cast<std::size_t>(planes_in)] <= static_cast<int>(k))
-      ++planes_in;
-    pc += planeRows(online.frames[k], online.scale_px, "online", online.plane_first_frame.empty() ? -1 : planes_in);
-  }
+  for (std::size_t k = 0; k < online.frames.size(); ++k)
+    pc += planeRows(online.frames[k], online.scale_px, "online", &online, static_cast<int>(k));
   if (refined) {
     TrackFrame fin = res.frames.back();
     fin.used = r.refined->observations;

@@ -138,7 +138,7 @@ OverlayInfo writeOverlay(const std::string& input, FrameRange range, const Track
       const auto& g = grids[j];
       if (g.empty()) continue;
       // A plane that came into view later is drawn from the frame it joined the filter.
-      if (j < result.plane_first_frame.size() && static_cast<int>(fi) < result.plane_first_frame[j]) continue;
+      if (!result.planeEstimatedAt(static_cast<int>(j), static_cast<int>(fi))) continue;
       auto proj = [&](const Eigen::Vector3d& X, cv::Point2f* q) {
         if (!X.allFinite()) return false;
         const Eigen::Vector3d Xc = tf.t + tf.R * X;

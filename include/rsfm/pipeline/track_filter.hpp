@@ -164,6 +164,10 @@ struct TrackFilterResult {
   /// frames[k].N[j] for k before it repeats its value at that frame (not an estimate: the plane
   /// was not yet in the state).
   std::vector<int> plane_first_frame;
+  /// Whether frames[k] holds an estimate of plane j (not a repeat of its value where it joined).
+  bool planeEstimatedAt(int j, int k) const {
+    return j >= static_cast<int>(plane_first_frame.size()) || plane_first_frame[static_cast<std::size_t>(j)] <= k;
+  }
   std::string stopped;               ///< empty unless the filter failed (numerical trouble, beta <= 0, the gate): why
   /// Non-empty when the tracks on the planes ran out before the last frame (after at least 10
   /// frames): the result covers the frames before it and is valid (ok()); this says where and why.
