@@ -29,6 +29,9 @@ struct Problem {
   PlaneBatchData data;
   PlaneBatchState start;
   int unpredictable = 0;  ///< observations left out: the start cannot predict them
+  /// Per plane, later tracks left out because the start cannot carry them to the reference frame
+  /// (behind the reference camera or at the plane's horizon).
+  std::vector<int> transfer_failed;
 };
 
 double robustSd(std::vector<double> v) {
@@ -82,6 +85,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   // state when null) for the points it knows.
   auto build = [&](const std::vector<int>& lab, const PlaneBatchState* from, const std::vector<int>* from_track_of_point) {
     Problem p;
+    p.transfer_failed.assign(m, 0);
     p.data.frames.resize(F);
     p.data.num_planes = m;
     p.data.gauge_plane = 0;
@@ -114,7 +118,10 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
           ref = uv;
         } else {
           const TrackFrame& f = online.frames[k1];
-          if (PlaneModel::transferToReference(last.N[lab[id]], f.beta, f.R, f.t, uv, &ref) != MeasureStatus::Ok) continue;
+          if (PlaneModel::transferToReference(last.N[lab[id]], f.beta, f.R, f.t, uv, &ref) != MeasureStatus::Ok) {
+            ++p.transfer_failed[lab[id]];
+            continue;
+          }
         }
       }
       point_of_track[id] = static_cast<int>(p.data.point_ids.size());
@@ -750,7 +757,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   out.planes = m;
   out.plane_tracks.assign(m, 0);
   out.plane_new_tracks.assign(m, 0);
-  out.transfer_failed.assign(m, 0);
+  out.transfer_failed = p.transfer_failed;  // the tracks the refinement could not take
   std::vector<double> plane_ss(m, 0.0);
   std::vector<long> plane_n(m, 0);
   for (std::size_t i = 0; i < p.data.point_ids.size(); ++i) {

@@ -252,10 +252,11 @@ LateStart startLatePlane(const Tracks& tracks, const std::vector<int>& labels, c
 }
 
 /// Transfers the late plane's tracks alive now to the reference frame through plane N (into
-/// ls->ids and ls->ref).
+/// ls->ids and ls->ref). Returns how many could not be carried (the point would lie behind the
+/// reference camera or on its horizon), for TrackFilterResult::transfer_failed.
 template <class UvOf>
-void transferLatePlane(const Tracks& tracks, int now_k, const TrackFrame& now, const Eigen::Vector3d& N, const UvOf& uvOf,
-                       LateStart* ls) {
+int transferLatePlane(const Tracks& tracks, int now_k, const TrackFrame& now, const Eigen::Vector3d& N, const UvOf& uvOf,
+                      LateStart* ls) {
   ls->ids.clear();
   ls->ref.clear();
   for (int id : ls->alive) {
@@ -265,6 +266,7 @@ void transferLatePlane(const Tracks& tracks, int now_k, const TrackFrame& now, c
     ls->ids.push_back(id);
     ls->ref.push_back(ref);
   }
+  return static_cast<int>(ls->alive.size() - ls->ids.size());
 }
 
 }  // namespace
@@ -575,17 +577,19 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
               same = j, same_residual = residual;
           }
           if (same >= 0) {
-            transferLatePlane(tracks, k, tf, f.ekf().x().segment<3>(PlaneModel::planeIndex(same)), uvOf, &ls);
+            res.transfer_failed[same] +=
+                transferLatePlane(tracks, k, tf, f.ekf().x().segment<3>(PlaneModel::planeIndex(same)), uvOf, &ls);
             plane_of[lp.label] = same;
             for (size_t q = 0; q < ls.ids.size(); ++q) join(ls.ids[q], ls.ref[q], same);
             continue;
           }
         }
-        transferLatePlane(tracks, k, tf, ls.N, uvOf, &ls);
+        const int not_carried = transferLatePlane(tracks, k, tf, ls.N, uvOf, &ls);
         if (static_cast<int>(ls.ids.size()) < PlaneModel::kMinPoints) continue;  // its tracks cannot be carried: left out
         if (f.ekf().size() != PlaneModel::planeIndex(f.model().numPlanes()))
           throw std::logic_error("runTrackFilter: a plane can only join a state of motion and planes");
         const int j = f.mutableModel().addPlane();
+        res.transfer_failed[j] += not_carried;
         const double sd = TrackFilterOptions::kLatePlaneSd0 * ls.N.norm();
         Eigen::Matrix3d P_new = 4.0 * ls.cov_N;
         P_new.diagonal().array() += sd * sd;

@@ -154,7 +154,9 @@ struct TrackFilterResult {
   std::vector<int> plane_tracks;     ///< tracks that entered the filter, per plane (point: one entry)
   std::vector<int> plane_new_tracks; ///< of which joined after the reference frame
   std::vector<double> plane_rms_px;  ///< posterior reprojection RMS per plane over all frames (px)
-  std::vector<int> transfer_failed;  ///< later tracks whose transfer failed, per plane
+  /// Later tracks whose transfer to the reference frame failed, per plane: tracks born after the
+  /// reference frame, and a late plane's tracks when it joined (or rejoined a plane) the filter.
+  std::vector<int> transfer_failed;
   /// Planes model: the state's plane of each label (labels of TrackFilterOptions::late_planes
   /// in the order they joined; -1: a late plane that never could be triangulated, its tracks
   /// unused). Plane j's entries everywhere in this result (N per frame, plane_tracks, ...) are
