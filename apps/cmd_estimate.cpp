@@ -131,7 +131,9 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
       ->default_str(fmt::format("{}", q[3]));
   a->add_option_function<double>("--q-beta", [&q](double v) { q[6] = v; }, "process variance of beta per frame")
       ->default_str(fmt::format("{}", q[6]));
-  a->add_option("--reference", e->reference, "reference positions: exact | inflate | refine")->capture_default_str();
+  a->add_option("--reference", e->reference,
+                "reference positions: conditional (on the filter's state) | refine | inflate | exact (docs/filter.md)")
+      ->capture_default_str();
   a->add_option("--gate", f.filter.update.gate_probability, "chi-square gate probability per point (0: off)")
       ->capture_default_str();
   a->add_option("--iterations", f.filter.iterations, "update iterations (1: EKF, >1: iterated EKF)")->capture_default_str();
@@ -204,7 +206,8 @@ std::string finishEstimateOptions(EstimateCli* e) {
   if (!(pp.q_omega >= 0) || !(pp.q_trans_rel >= 0)) return "process variances must be >= 0";
   if (pp.anneal_frames < 0) return "--anneal-frames must be >= 0";
   if (!(f.depth0 > 0)) return "--depth0 must be positive";
-  if (!parseReferenceModel(e->reference, &f.filter.reference)) return "--reference must be exact, inflate or refine";
+  if (!parseReferenceModel(e->reference, &f.filter.reference) || f.filter.reference == ReferenceModel::State)
+    return "--reference must be conditional, refine, inflate or exact ('state' takes no tracks that start later)";
   if (!(f.focal_px >= 0) || !(f.focal0_px >= 0)) return "--focal-px and --focal0-px must be >= 0";
   if (!(f.sigma_px > 0)) return "--sigma-px must be positive";
   if (f.normal_sd0 && !(*f.normal_sd0 > 0 && std::isfinite(*f.normal_sd0))) return "--normal-sd0 must be positive";

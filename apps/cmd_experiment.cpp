@@ -70,7 +70,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   t1->add_option("--batch", o.batch, "add the batch (Ceres, maximum-likelihood) row (true/false)")
       ->capture_default_str();
   t1->add_option("--reference", o.reference_model,
-                 "reference positions: exact (as published) | inflate | refine | state")
+                 "reference positions: exact (as published) | inflate | refine | state | conditional (docs/filter.md)")
       ->capture_default_str();
   t1->add_option("--alpha-init", o.alpha_init, "point model initial depths: plane | constant")
       ->capture_default_str();
@@ -118,7 +118,7 @@ void addExperimentCommands(CLI::App& app, std::vector<Command>& commands) {
   pl->add_option("--q-structure", po.q_structure, "process variance of each plane / depth component per frame")
       ->capture_default_str();
   pl->add_option("--reference", po.reference_model,
-                 "reference positions: exact | inflate | refine | state (in the filter's state: O(N^3) per frame)")
+                 "reference positions: exact | inflate | refine | state (in the filter's state: O(N^3) per frame) | conditional (state's estimate at O(N))")
       ->capture_default_str();
   pl->add_option("--passes", po.passes, "passes of the plane filters (1: recursive; >1: restart from the last pass's planes and beta)")
       ->capture_default_str();

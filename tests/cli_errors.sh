@@ -165,6 +165,8 @@ CT="$TMP/cam-tracks.csv"
 printf '# rsfm-tracks 1\n# image_size 640 480\n# frames 0 2\nframe,track,x,y\n0,0,10,10\n1,0,11,10\n2,0,12,10\n' >"$CT"
 E="$TMP/est"
 check "estimate: unknown --refine" 2 "$E" -- estimate --tracks "$CT" --out "$E" --refine later
+check "estimate: references in the state" 2 "$E" -- estimate --tracks "$CT" --out "$E" --reference state
+check "experiment two-object: references conditional on the state" 2 "$E" -- experiment two-object --out "$E" --reference conditional
 check "estimate: missing camera file" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/none.yaml"
 printf 'not: [a yaml camera\n' >"$TMP/bad.yaml"
 check "estimate: malformed camera file" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/bad.yaml"

@@ -134,6 +134,108 @@ TEST(PlaneFilter, BetaBoundProjectsTheEstimateOntoTheBound) {
   EXPECT_GE(min_beta, 2.0 - 1e-12);
 }
 
+// ---------------------------------------------------------------------------------------------
+// ReferenceModel::Conditional (issue 15 item 2): the references conditional on the state.
+
+/// The Table 1 scene with `points` points and `noise_px` uniform noise on every frame (the
+/// reference frame included), seeded.
+struct NoisyTable1 {
+  Table1SceneOptions so;
+  Table1Scene scene;
+  std::vector<std::vector<Eigen::Vector2d>> uv;
+};
+NoisyTable1 noisyTable1(int points, double noise_px, std::uint64_t seed, int frames = 100) {
+  NoisyTable1 t;
+  t.so.points = points;
+  t.so.frames = frames;
+  std::mt19937_64 rng(seed);
+  t.scene = makeTable1Scene(t.so, rng);
+  t.uv = addUniformNoise(t.scene.uv, noise_px, t.so.scale_px, rng);
+  return t;
+}
+std::vector<Observation> frameObservations(const NoisyTable1& t, int k) {
+  std::vector<Observation> obs;
+  for (int i = 0; i < static_cast<int>(t.uv[k].size()); ++i) obs.push_back({i, t.uv[k][i]});
+  return obs;
+}
+
+TEST(ConditionalReferences, AreTheStateFiltersEstimateWithoutProcessNoise) {
+  // Without process noise the references are conditionally independent given the state, so the
+  // O(N) conditional form is the references-in-the-state filter (state 10 + 2N) exactly: same
+  // linearization points, same linear-Gaussian update. 12 frames of 20 points at 1 px, the gate
+  // off (with Q = 0 the orbit does not fit: this is about the algebra, not the fit).
+  const NoisyTable1 t = noisyTable1(20, 1.0, 11, 12);
+  FilterOptions fo;
+  fo.sigma_uv = 1.0 / t.so.scale_px;
+  fo.q_motion.setZero();
+  fo.update.gate_probability = 0.0;
+  fo.reference = ReferenceModel::State;
+  RecursiveFilter<PlaneModel> state = table1PlaneFilter(t.scene, fo);
+  fo.reference = ReferenceModel::Conditional;
+  RecursiveFilter<PlaneModel> cond = table1PlaneFilter(t.scene, fo);
+  // The initial motion must be free to move for the frames to inform anything.
+  for (auto* f : {&state, &cond})
+    for (int i = 0; i < 6; ++i) f->mutableEkf().mutableP()(i, i) = 1e-2;
+  for (int k = 1; k <= t.so.frames; ++k) {
+    const auto obs = frameObservations(t, k);
+    ASSERT_TRUE(state.step(obs).ok()) << k;
+    ASSERT_TRUE(cond.step(obs).ok()) << k;
+    const Eigen::VectorXd xs = state.ekf().x().head<10>(), xc = cond.ekf().x();
+    EXPECT_LT((xs - xc).cwiseAbs().maxCoeff(), 1e-9 * (1.0 + xs.cwiseAbs().maxCoeff())) << "frame " << k;
+    EXPECT_LT((state.ekf().P().topLeftCorner<10, 10>() - cond.ekf().P()).cwiseAbs().maxCoeff(), 1e-9) << "frame " << k;
+    for (int i = 0; i < 20; ++i)
+      EXPECT_LT((state.model().reference(i) - cond.model().reference(i)).norm(), 1e-9) << "frame " << k << " point " << i;
+  }
+}
+
+/// Normal error (deg), signed beta error (%) and beta's z^2 at the last frame of one run.
+struct EndErrors {
+  double normal_deg, beta_pct, beta_z2;
+};
+EndErrors runTable1Reference(const NoisyTable1& t, ReferenceModel reference) {
+  FilterOptions fo;
+  fo.sigma_uv = 1.0 / t.so.scale_px;
+  fo.reference = reference;
+  RecursiveFilter<PlaneModel> f = table1PlaneFilter(t.scene, fo);
+  for (int k = 1; k <= t.so.frames; ++k) EXPECT_TRUE(f.step(frameObservations(t, k)).ok()) << k;
+  const double e = f.beta() / t.so.beta - 1.0;
+  return {normalAngle(f.ekf().x().tail<3>(), t.so.plane) / kDegToRad, 100.0 * e,
+          std::pow(f.beta() - t.so.beta, 2) / f.ekf().P()(idx::kBeta, idx::kBeta)};
+}
+
+TEST(ConditionalReferences, KeepTheirAccuracyAsThePointsGrow) {
+  // Refine copies the state's error into every reference (each refined from its own residual at
+  // the posterior, the cross-covariance dropped), so from the paper's start (beta 50 % off) its
+  // error stops falling with N; the conditional form's does not. Table 1 scene, 1 px, N = 1000,
+  // 3 seeds, mean at frame 100. Measured from the paper's start: refine 0.27 deg, conditional
+  // 0.029 deg / 0.37 %, exact 0.005 deg (what is left of the conditional's error is the first
+  // frames' linearization far from the truth, imprinted on the references: docs/filter.md).
+  double refine = 0.0, cond = 0.0, cond_beta = 0.0;
+  for (std::uint64_t seed : {1, 2, 3}) {
+    const NoisyTable1 t = noisyTable1(1000, 1.0, 100 + seed);
+    refine += runTable1Reference(t, ReferenceModel::Refine).normal_deg / 3.0;
+    const EndErrors c = runTable1Reference(t, ReferenceModel::Conditional);
+    cond += c.normal_deg / 3.0;
+    cond_beta += std::abs(c.beta_pct) / 3.0;
+  }
+  EXPECT_LT(cond, 0.1);
+  EXPECT_LT(cond_beta, 0.8);
+  EXPECT_GT(refine, 3.0 * cond) << "refine no longer loses accuracy with N: revisit the pipeline's default";
+}
+
+TEST(ConditionalReferences, BetaIsConsistentWithFewPoints) {
+  // With 30 points the conditional form's beta sd covers its error (mean z^2 over 10 seeds near
+  // its dof 1; measured 0.4), where refine's is overconfident (measured 53) and exact's too (37).
+  double z2 = 0.0, z2_refine = 0.0;
+  for (std::uint64_t seed = 1; seed <= 10; ++seed) {
+    const NoisyTable1 t = noisyTable1(30, 1.0, 200 + seed);
+    z2 += runTable1Reference(t, ReferenceModel::Conditional).beta_z2 / 10.0;
+    z2_refine += runTable1Reference(t, ReferenceModel::Refine).beta_z2 / 10.0;
+  }
+  EXPECT_LT(z2, 3.0);
+  EXPECT_GT(z2_refine, 10.0);
+}
+
 TEST(PlaneFilter, NoiselessConvergesResetReading) {
   const NoiselessResult r = runNoiselessPlane(RotationReading::Reset);
   std::cout << "reset: normal " << r.normal_err_deg << " deg, beta err " << r.beta_err << ", t err "

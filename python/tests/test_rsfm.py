@@ -148,8 +148,9 @@ def test_errors_are_the_cli_messages(scene, tracks_file):
 def test_plane_filter_step_by_step():
     """The filter alone on the noise-free scene, both faces (one plane alone does not fix this
     scene's focal length: `model="plane"` reports 235 px), observations in normalized units. With
-    0.3 px noise the filter alone ends at 447 +- 5 px (the published filter's bias, which the
-    refinement of estimate() removes: 511 +- 13 px), so the noisy scene is left to estimate()."""
+    0.3 px noise the filter alone ends at 462 +- 9 px (447 +- 5 px with the refined references
+    before; the refinement of estimate() removes what is left: 511 +- 13 px), so the noisy scene is
+    left to estimate()."""
     rows, (n1, n2) = box_scene(noise_px=0.0)
     s = float(max(W, H))
     ref = rows[rows[:, 0] == 0]
@@ -173,7 +174,9 @@ def test_plane_filter_step_by_step():
     assert np.allclose(P, P.T, atol=1e-12) and np.min(np.linalg.eigvalsh(P)) > -1e-12
     focal = s / f.beta
     focal_sd = s * math.sqrt(P[6, 6]) / f.beta ** 2
-    assert focal == pytest.approx(FOCAL, rel=0.03)  # measured: 490 +- 6 px from 550 px
+    # measured: 483 +- 10 px from 550 px (the references conditional on the state, the pipeline's
+    # default; 490 +- 6 px with the refined references before: docs/filter.md)
+    assert focal == pytest.approx(FOCAL, rel=0.04)
     assert abs(focal - FOCAL) < 3 * focal_sd
     assert angle_deg(f.normals[0], n1) < 2.0 and angle_deg(f.normals[1], n2) < 2.0  # from 10 degrees off
     with pytest.raises(rsfm.InputError, match="outside"):

@@ -385,7 +385,7 @@ std::string validatePlanesOptions(const PlanesOptions& o) {
   for (double q : {o.q_translation, o.q_omega, o.q_beta, o.q_structure})
     if (!(q >= 0.0) || !std::isfinite(q)) return "process variances must be finite and non-negative";
   if (ReferenceModel r; !parseReferenceModel(o.reference_model, &r))
-    return "--reference must be 'exact', 'inflate', 'refine' or 'state'";
+    return "--reference must be 'exact', 'inflate', 'refine', 'state' or 'conditional'";
   if (o.iekf_iterations < 0) return "--iekf-iterations must be non-negative";
   if (o.iekf_after < 0) return "--iekf-after must be non-negative";
   if (!(o.beta_min >= 0.0) || !(o.beta_min < o.beta0)) return "--beta-min must be non-negative and below --beta0";

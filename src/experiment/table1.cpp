@@ -422,7 +422,7 @@ std::string validateTable1Options(const Table1Options& o) {
   if (o.iekf_iterations < 0) return "--iekf-iterations must be non-negative";
   if (o.iekf_after < 0) return "--iekf-after must be non-negative";
   if (ReferenceModel r; !parseReferenceModel(o.reference_model, &r))
-    return "--reference must be 'exact', 'inflate', 'refine' or 'state'";
+    return "--reference must be 'exact', 'inflate', 'refine', 'state' or 'conditional'";
   return {};
 }
 

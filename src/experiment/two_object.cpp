@@ -91,8 +91,10 @@ std::string validateTwoObjectOptions(const TwoObjectOptions& o) {
   if (!(o.n_rel > 0.0) || !std::isfinite(o.n_rel)) return "--n-rel must be positive";
   for (double q : {o.q_translation, o.q_omega})
     if (!(q >= 0.0) || !std::isfinite(q)) return "process variances must be finite and non-negative";
-  if (ReferenceModel r; !parseReferenceModel(o.reference_model, &r) || r == ReferenceModel::State)
-    return "--reference must be 'exact', 'inflate' or 'refine' (the independent-motion filter keeps no references in its state)";
+  if (ReferenceModel r; !parseReferenceModel(o.reference_model, &r) || r == ReferenceModel::State ||
+                            r == ReferenceModel::Conditional)
+    return "--reference must be 'exact', 'inflate' or 'refine' (the independent-motion filter keeps no references in its state, "
+           "nor conditional on it)";
   if (o.threads < 0) return "--threads must be non-negative";
   return {};
 }

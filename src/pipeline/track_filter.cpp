@@ -26,7 +26,7 @@ bool parseTrackModel(const std::string& s, TrackModel* m) {
 
 FilterOptions TrackFilterOptions::defaultFilter() {
   FilterOptions f;
-  f.reference = ReferenceModel::Refine;
+  f.reference = ReferenceModel::Conditional;
   f.iterate_after_frames = 10;  // with iterations > 1 (docs/filter.md)
   f.mismatch_retries = 3;       // a fast or sudden motion: process noise x10, x100, x1000 (docs/estimate.md)
   f.adapt.enabled = true;       // the process noise follows the measured motion (TrackFilterOptions::q_from_data)

@@ -674,16 +674,47 @@ std::string scoreboardCsv(const BenchResult& res) {
   auto worst = [](const std::vector<double>& v) {
     return v.empty() ? std::string() : fmt::format("{:.2f}", *std::max_element(v.begin(), v.end()));
   };
-  s += fmt::format("aggregate:share,aggregate,rendered,{},,run to the end {}/{}; truth in 95 % {}/{},{},,,,,,,,,{},,,,,,{},,,,,,,,,{},,{},,\n",
-                   a.sequences, a.to_end, a.sequences, a.covered, a.cover_pairs, share(a.to_end, a.sequences),
-                   share(a.focal_cov, a.focal_pairs), share(a.normal_cov, a.normal_pairs),
-                   share(a.online_focal_cov, a.focal_pairs), share(a.online_normal_cov, a.normal_pairs));
-  s += fmt::format("aggregate:median,aggregate,rendered,{},,median of |error| over sequences,,,,,,,{},,,,,,{},,,{},,{},,,,,{},,{},,,\n",
-                   a.sequences, med(a.focal_err), med(a.normal_err), med(a.face_err), med(a.ate), med(a.online_focal_err),
-                   med(a.online_normal_err));
-  s += fmt::format("aggregate:worst,aggregate,rendered,{},,worst |error| over sequences,,,,,,,{},,,,,,{},,,{},,{},,,,,{},,{},,,\n",
-                   a.sequences, worst(a.focal_err), worst(a.normal_err), worst(a.face_err), worst(a.ate),
-                   worst(a.online_focal_err), worst(a.online_normal_err));
+  // Each aggregate row is written by column name, in the header's order.
+  std::vector<std::string> columns;
+  for (std::size_t p = 0, q; p <= std::string_view(kCsvHeader).size(); p = q + 1) {
+    q = std::string_view(kCsvHeader).find(',', p);
+    if (q == std::string_view::npos) q = std::string_view(kCsvHeader).size();
+    columns.emplace_back(std::string_view(kCsvHeader).substr(p, q - p));
+  }
+  auto row = [&](const std::string& name, const std::string& message, const std::map<std::string, std::string>& values) {
+    std::string line;
+    for (std::size_t c = 0; c < columns.size(); ++c) {
+      std::string v;
+      if (columns[c] == "sequence") v = name;
+      else if (columns[c] == "kind") v = "aggregate";
+      else if (columns[c] == "axes") v = "rendered";
+      else if (columns[c] == "frames") v = std::to_string(a.sequences);
+      else if (columns[c] == "message") v = csvField(message);
+      else if (auto it = values.find(columns[c]); it != values.end()) v = it->second;
+      line += (c ? "," : "") + v;
+    }
+    s += line + "\n";
+  };
+  row("aggregate:share", fmt::format("run to the end {}/{}; truth in 95 % {}/{}", a.to_end, a.sequences, a.covered, a.cover_pairs),
+      {{"frames_processed", share(a.to_end, a.sequences)},
+       {"focal_in_95", share(a.focal_cov, a.focal_pairs)},
+       {"normals_in_95", share(a.normal_cov, a.normal_pairs)},
+       {"online_focal_in_95", share(a.online_focal_cov, a.focal_pairs)},
+       {"online_normals_in_95", share(a.online_normal_cov, a.normal_pairs)}});
+  row("aggregate:median", "median of |error| over sequences",
+      {{"focal_err_pct", med(a.focal_err)},
+       {"worst_normal_err_deg", med(a.normal_err)},
+       {"face_angle_err_deg", med(a.face_err)},
+       {"ate_pct", med(a.ate)},
+       {"online_focal_err_pct", med(a.online_focal_err)},
+       {"online_worst_normal_err_deg", med(a.online_normal_err)}});
+  row("aggregate:worst", "worst |error| over sequences",
+      {{"focal_err_pct", worst(a.focal_err)},
+       {"worst_normal_err_deg", worst(a.normal_err)},
+       {"face_angle_err_deg", worst(a.face_err)},
+       {"ate_pct", worst(a.ate)},
+       {"online_focal_err_pct", worst(a.online_focal_err)},
+       {"online_worst_normal_err_deg", worst(a.online_normal_err)}});
   return s;
 }
 

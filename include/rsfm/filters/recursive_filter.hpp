@@ -2,6 +2,7 @@
 // Frame-by-frame driver shared by the point and plane models (docs/conventions.md, docs/filter.md).
 // One step = predict (identity dynamics, P += Q) -> linearize all observations -> EKF update ->
 // fold the incremental rotation into the global rotation R_g (and zero omega in the reset reading).
+#include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <Eigen/LU>
 #include <algorithm>
@@ -13,6 +14,7 @@
 
 #include "rsfm/camera.hpp"
 #include "rsfm/ekf.hpp"
+#include "rsfm/models/linearize.hpp"
 #include "rsfm/models/projection.hpp"
 #include "rsfm/rotation.hpp"
 
@@ -40,6 +42,25 @@ enum class ReferenceModel {
   /// batch's joint estimate; the price is a 2N-larger state, O(N^3) per frame. The points must
   /// all exist when the filter is built (the appended block follows the model's state).
   State,
+  /// As State to first order, at O(N) per frame: each reference is kept *conditional on the
+  /// state*, u_i | x ~ N(u_i + G_i (x - x^), C_i) (x^ the state's mean), the joint Gaussian of
+  /// the state and the references factored as p(x) prod_i p(u_i | x). The references are
+  /// conditionally independent given the state exactly as long as the state has no process
+  /// noise (each observation involves the state and one reference), so then this *is* State's
+  /// estimate (first order) without its 2N x 2N covariance. Per frame (docs/filter.md):
+  ///  - the observation's Jacobian on the state is the total one, A_i = H_i + Hu_i G_i, and its
+  ///    noise sigma^2 I + Hu_i C_i Hu_i^T (the reference marginalized given x, as Inflate);
+  ///  - after the update, with K_i = C_i Hu_i^T D_i^-1 (D_i that noise) and the innovation
+  ///    nu_i = z_i - h(x^-, u_i): u_i <- u_i + K_i nu_i + (G_i - K_i A_i)(x^+ - x^-),
+  ///    G_i <- G_i - K_i A_i, C_i <- C_i - K_i Hu_i C_i (the conditional of u_i given x and z_i);
+  ///  - the process noise x' = x + w: u_i | x' has gain G_i J, J = P (P + Q)^-1, and the rest,
+  ///    G_i (P - J P) G_i^T, shared through the old state, is added to C_i as if independent
+  ///    (the one approximation, beside keeping G_i on the motion's and the point's own structure
+  ///    columns only);
+  ///  - a point not observed in a frame leaves the conditional form: C_i <- C_i + G_i P G_i^T,
+  ///    G_i <- 0.
+  /// Unlike Refine, the state's own error is not copied into every reference (issue 15 item 2).
+  Conditional,
 };
 inline std::string_view toString(ReferenceModel r) {
   switch (r) {
@@ -47,6 +68,7 @@ inline std::string_view toString(ReferenceModel r) {
     case ReferenceModel::Inflate: return "inflate";
     case ReferenceModel::Refine: return "refine";
     case ReferenceModel::State: return "state";
+    case ReferenceModel::Conditional: return "conditional";
   }
   return "?";
 }
@@ -55,6 +77,7 @@ inline bool parseReferenceModel(std::string_view s, ReferenceModel* out) {
   else if (s == "inflate") *out = ReferenceModel::Inflate;
   else if (s == "refine") *out = ReferenceModel::Refine;
   else if (s == "state") *out = ReferenceModel::State;
+  else if (s == "conditional") *out = ReferenceModel::Conditional;
   else return false;
   return true;
 }
@@ -230,6 +253,13 @@ class RecursiveFilter {
     }
     double q_scale = 1.0;
     const Eigen::Matrix<double, 6, 1> motion_before = ekf_.x().template head<6>();
+    if (opt_.reference == ReferenceModel::Conditional) {
+      // The references conditional on the predicted state (a retry's larger noise is not
+      // followed here: its prior is the same mean, only wider).
+      fillProcessNoise(0, 1.0, &fs);
+      conditionalPredict();
+      cond_center_ = ekf_.x();
+    }
     for (int attempt = 0;; ++attempt) {
       fs.iterations = 1;
       fs.invalid = 0;
@@ -237,18 +267,7 @@ class RecursiveFilter {
       fs.beta_projected = false;
       fs.health = kHealthy;
       fs.q_scale = q_scale;
-      q_.setConstant(ekf_.size(), opt_.q_structure);
-      if (opt_.adapt.enabled) {
-        // FilterOptions::Adaptation: each block at its matched scale; a retry at least Q0 x factor^attempt.
-        fs.q_translation_scale = attempt == 0 ? adapt_scale_[0] : std::max(adapt_scale_[0], 1.0) * q_scale;
-        fs.q_rotation_scale = attempt == 0 ? adapt_scale_[1] : std::max(adapt_scale_[1], 1.0) * q_scale;
-        q_.template head<3>() = opt_.q_motion.template head<3>() * fs.q_translation_scale;
-        q_.template segment<3>(3) = opt_.q_motion.template segment<3>(3) * fs.q_rotation_scale;
-        q_[6] = opt_.q_motion[6] * q_scale;
-      } else {
-        fs.q_translation_scale = fs.q_rotation_scale = q_scale;
-        q_.template head<7>() = opt_.q_motion * q_scale;
-      }
+      fillProcessNoise(attempt, q_scale, &fs);
       ekf_.predict(q_);
       linearize(ekf_.x(), obs, rc, &batch_, &fs.invalid, &fs.first_problem, &fs.used);
       x_prior_ = ekf_.x();
@@ -282,6 +301,8 @@ class RecursiveFilter {
     if (opt_.adapt.enabled && fs.update.applied && fs.health == kHealthy) adaptProcessNoise(motion_before);
     if (opt_.reference == ReferenceModel::Refine && fs.update.applied && fs.health == kHealthy)
       refineReferences(obs, fs.used, fs.update.gated_mask);
+    if (opt_.reference == ReferenceModel::Conditional && fs.update.applied && fs.health == kHealthy)
+      conditionalUpdate(obs, rc, &fs);
     syncReferences(ekf_.x());
     // R^k = R(dq(omega)) R^{k-1} ([AS99] appendix).
     Rg_ = incrementalRotation(omega) * Rg_;
@@ -299,6 +320,9 @@ class RecursiveFilter {
     ekf_.mutableP() = P;
     Rg_ = Rg;
     steps_ = 0;
+    // ReferenceModel::Conditional: the references' dependence on the old state is dropped.
+    for (int id : cond_active_) cond_G_.template middleRows<2>(2 * id).setZero();
+    cond_active_.clear();
     adapt_mean_.setOnes();
     adapt_scale_.setOnes();
     syncReferences(ekf_.x());
@@ -334,7 +358,43 @@ class RecursiveFilter {
   void linearize(const Eigen::VectorXd& x, const std::vector<Observation>& obs, const std::vector<Eigen::Matrix2d>* rc,
                  BlockBatch* batch, int* invalid, MeasureStatus* problem, std::vector<int>* used) {
     syncReferences(x);
-    model_.linearize(x, Rg_, obs, opt_.sigma_uv, rc, batch, invalid, problem, used, ref_index_);
+    if (opt_.reference != ReferenceModel::Conditional) {
+      model_.linearize(x, Rg_, obs, opt_.sigma_uv, rc, batch, invalid, problem, used, ref_index_);
+      return;
+    }
+    // ReferenceModel::Conditional: the references at x (u_i + G_i (x - x^)), each block's
+    // Jacobian the total one H_i + Hu_i G_i (every state column: through G_i a point's reference
+    // depends on the whole state), Hu_i kept for the update of the references.
+    ensureConditional();
+    const int n = ekf_.size();
+    const bool shifted = x.size() == cond_center_.size() && x != cond_center_;
+    if (shifted) {
+      cond_saved_.resize(model_.numPoints());
+      cond_d_ = x - cond_center_;
+      for (int id : cond_active_) {
+        cond_saved_[id] = model_.reference(id);
+        model_.setReference(id, cond_saved_[id] + cond_G_.template middleRows<2>(2 * id) * cond_d_);
+      }
+    }
+    if (cond_hu_.size() < obs.size()) {
+      cond_hu_.resize(obs.size());
+      cond_ids_.resize(obs.size());
+    }
+    linearizeObservations(model_, x, Rg_, obs, opt_.sigma_uv, rc, &cond_compact_, invalid, problem, used, -1, CondHook{this});
+    if (shifted)
+      for (int id : cond_active_) model_.setReference(id, cond_saved_[id]);
+    constexpr int S = Model::kStructurePerPoint;
+    const BlockBatch& c = cond_compact_;
+    batch->reserve(c.blocks, 2, n, 0);
+    for (int b = 0; b < c.blocks; ++b) {
+      auto J = batch->J.template middleRows<2>(2 * b);
+      J.noalias() = cond_hu_[b] * cond_G_.template middleRows<2>(2 * cond_ids_[b]);
+      J.template leftCols<7>() += c.J.template block<2, 7>(2 * b, 0);
+      for (int j = 0; j < S; ++j) J.col(c.cols(b, j)) += c.J.col(7 + j).template segment<2>(2 * b);
+      batch->residual.template segment<2>(2 * b) = c.residual.template segment<2>(2 * b);
+      batch->R.template block<2, 2>(2 * b, 0) = c.R.template block<2, 2>(2 * b, 0);
+    }
+    batch->blocks = c.blocks;
   }
   /// FilterOptions::Adaptation after an applied step: the frame's motion delta (t_X, t_Y, t_Z beta,
   /// omega; the prior was `before`, identity dynamics) in units of Q0, per block, into the
@@ -359,6 +419,173 @@ class RecursiveFilter {
     const double s2 = referenceSigma() * referenceSigma();
     while (static_cast<int>(ref_cov_.size()) < model_.numPoints())
       ref_cov_.push_back(Eigen::Matrix2d::Identity() * s2);
+  }
+  /// The process noise of one attempt of a step into q_ (and its scales into fs).
+  void fillProcessNoise(int attempt, double q_scale, FrameStats* fs) {
+    q_.setConstant(ekf_.size(), opt_.q_structure);
+    if (opt_.adapt.enabled) {
+      // FilterOptions::Adaptation: each block at its matched scale; a retry at least Q0 x factor^attempt.
+      fs->q_translation_scale = attempt == 0 ? adapt_scale_[0] : std::max(adapt_scale_[0], 1.0) * q_scale;
+      fs->q_rotation_scale = attempt == 0 ? adapt_scale_[1] : std::max(adapt_scale_[1], 1.0) * q_scale;
+      q_.template head<3>() = opt_.q_motion.template head<3>() * fs->q_translation_scale;
+      q_.template segment<3>(3) = opt_.q_motion.template segment<3>(3) * fs->q_rotation_scale;
+      q_[6] = opt_.q_motion[6] * q_scale;
+    } else {
+      fs->q_translation_scale = fs->q_rotation_scale = q_scale;
+      q_.template head<7>() = opt_.q_motion * q_scale;
+    }
+  }
+
+  // ReferenceModel::Conditional ---------------------------------------------------------------
+  /// linearizeObservations' hook: keeps Hu_i and the point of each block.
+  struct CondHook {
+    RecursiveFilter* f;
+    static constexpr bool kNeedsHu = true;
+    void operator()(int b, int id, const Eigen::Matrix2d& Hu, BlockBatch*) const {
+      f->cond_hu_[b] = Hu;
+      f->cond_ids_[b] = id;
+    }
+  };
+  /// G's layout follows the state (a plane added: zero columns) and the points (new: zero rows;
+  /// room doubles, so adding points allocates rarely).
+  void ensureConditional() {
+    const int n = ekf_.size(), rows = 2 * model_.numPoints();
+    const int old_rows = static_cast<int>(cond_G_.rows()), old_cols = static_cast<int>(cond_G_.cols());
+    if (old_cols == n && old_rows >= rows) return;
+    const int new_rows = old_rows >= rows ? old_rows : std::max(rows, 2 * old_rows);
+    cond_G_.conservativeResize(new_rows, n);
+    if (n > old_cols) cond_G_.rightCols(n - old_cols).setZero();
+    if (new_rows > old_rows) cond_G_.bottomRows(new_rows - old_rows).setZero();
+  }
+  /// The identity dynamics' process noise x' = x + w (w ~ N(0, Q), q_ on the free components)
+  /// carried into the references' conditionals: E[x | x'] = x^ + J (x' - x^), J = P (P + Q)^-1
+  /// = I - Q (P + Q)^-1, so G_i <- G_i - G_i Q (P + Q)^-1 (only the noisy components' columns
+  /// of G_i enter); the rest of x's spread given x', P - J P = P (P + Q)^-1 Q (supported on the
+  /// noisy components), reaches u_i through G_i and is added to C_i as if independent between
+  /// points (the one approximation).
+  void conditionalPredict() {
+    ensureConditional();
+    if (cond_active_.empty()) return;
+    const Eigen::MatrixXd& P = ekf_.P();
+    const int n = ekf_.size();
+    const auto& fixed = ekf_.fixed();
+    cond_free_.clear();
+    cond_q_.clear();
+    for (int i = 0; i < n; ++i) {
+      if (i < static_cast<int>(fixed.size()) && fixed[i]) continue;
+      if (P(i, i) + q_[i] > 0.0) cond_free_.push_back(i);
+      if (q_[i] > 0.0) cond_q_.push_back(i);
+    }
+    const int nf = static_cast<int>(cond_free_.size()), nq = static_cast<int>(cond_q_.size());
+    if (nq == 0) return;
+    cond_W_.resize(nf, nf);
+    for (int a = 0; a < nf; ++a)
+      for (int b = 0; b < nf; ++b) cond_W_(a, b) = P(cond_free_[a], cond_free_[b]) + (a == b ? q_[cond_free_[a]] : 0.0);
+    cond_ldlt_.compute(cond_W_);
+    if (cond_ldlt_.info() != Eigen::Success) return;
+    // Columns of the noisy components: E = W^-1 Q e_q (nf x nq).
+    cond_E_.setZero(nf, nq);
+    for (int a = 0, c = 0; a < nf && c < nq; ++a)
+      if (cond_free_[a] == cond_q_[c]) {  // both lists ascend, and every noisy component is free
+        cond_E_(a, c) = q_[cond_q_[c]];
+        ++c;
+      }
+    cond_ldlt_.solveInPlace(cond_E_);
+    // M = (Q W^-1) rows q (nq x n, zero on the other columns), Sig = P W^-1 Q at (q, q).
+    cond_M_.setZero(nq, n);
+    for (int a = 0; a < nf; ++a)
+      for (int c = 0; c < nq; ++c) cond_M_(c, cond_free_[a]) = cond_E_(a, c);
+    cond_Sig_.setZero(nq, nq);
+    for (int c = 0; c < nq; ++c)
+      for (int d = 0; d < nq; ++d) {
+        double v = 0.0;
+        for (int a = 0; a < nf; ++a) v += P(cond_q_[c], cond_free_[a]) * cond_E_(a, d);
+        cond_Sig_(c, d) = v;
+      }
+    for (int c = 0; c < nq; ++c)  // symmetric in exact arithmetic
+      for (int d = 0; d < c; ++d) cond_Sig_(c, d) = cond_Sig_(d, c) = 0.5 * (cond_Sig_(c, d) + cond_Sig_(d, c));
+    bool motion_only = nq == 6;  // the usual case: noise on the 6 motion components alone
+    for (int c = 0; motion_only && c < 6; ++c) motion_only = cond_q_[c] == c;
+    if (motion_only) {
+      // Fixed-size blocks (no dynamic products per point).
+      const Eigen::Matrix<double, 6, 6> Sig = cond_Sig_;
+      cond_M6_ = cond_M_;
+      for (int id : cond_active_) {
+        auto G = cond_G_.template middleRows<2>(2 * id);
+        const Eigen::Matrix<double, 2, 6> Gq = G.template leftCols<6>();
+        G.noalias() -= Gq * cond_M6_;
+        ref_cov_[id].noalias() += (Gq * Sig) * Gq.transpose();
+      }
+      return;
+    }
+    cond_Gq_.resize(2, nq);
+    for (int id : cond_active_) {
+      auto G = cond_G_.template middleRows<2>(2 * id);
+      for (int c = 0; c < nq; ++c) cond_Gq_.col(c) = G.col(cond_q_[c]);
+      G.noalias() -= cond_Gq_ * cond_M_;
+      cond_GS_.noalias() = cond_Gq_ * cond_Sig_;
+      ref_cov_[id].noalias() += cond_GS_ * cond_Gq_.transpose();
+    }
+  }
+  /// After an applied update: each observed point's reference conditional on the state given its
+  /// observation (ReferenceModel::Conditional), gated ones carried to the new mean, and points
+  /// not observed leave the conditional form.
+  void conditionalUpdate(const std::vector<Observation>& obs, const std::vector<Eigen::Matrix2d>* rc, FrameStats* fs) {
+    const Eigen::VectorXd& x = ekf_.x();
+    const Eigen::MatrixXd& P = ekf_.P();
+    const int np = model_.numPoints();
+    cond_seen_.assign(np, 0);
+    // Accepted observations (by observation index) of the update.
+    cond_accepted_.assign(obs.size(), 0);
+    for (size_t b = 0; b < fs->used.size(); ++b)
+      if (b >= fs->update.gated_mask.size() || !fs->update.gated_mask[b]) cond_accepted_[fs->used[b]] = 1;
+    if (fs->iterations > 1) {
+      // The iterated update's last linearization is not batch_: carry every reference to the
+      // posterior and linearize there (the innovations are then the posterior residuals).
+      cond_d_ = x - cond_center_;
+      for (int id : cond_active_)
+        model_.setReference(id, model_.reference(id) + cond_G_.template middleRows<2>(2 * id) * cond_d_);
+      cond_center_ = x;
+      int invalid = 0;
+      MeasureStatus problem = MeasureStatus::Ok;
+      linearize(x, obs, rc, &batch_, &invalid, &problem, &cond_used_);
+    } else {
+      cond_used_ = fs->used;
+    }
+    cond_d_ = x - cond_center_;
+    const Eigen::VectorXd& d = cond_d_;
+    for (size_t b = 0; b < cond_used_.size(); ++b) {
+      const int k = cond_used_[b];
+      const int id = obs[k].id;
+      cond_seen_[id] = 1;
+      auto G = cond_G_.template middleRows<2>(2 * id);
+      if (!cond_accepted_[k]) {  // gated: only carried to the new mean
+        model_.setReference(id, model_.reference(id) + G * d);
+        continue;
+      }
+      const Eigen::Matrix2d& Hu = cond_hu_[b];
+      const Eigen::Matrix2d D = batch_.R.template block<2, 2>(2 * b, 0);
+      Eigen::Matrix2d& C = ref_cov_[id];
+      // K = C Hu^T D^-1 (D = sigma^2 I + Hu C Hu^T is positive definite).
+      const Eigen::Matrix2d K = (D.inverse() * Hu * C).transpose();
+      const Eigen::Matrix2d Cn = C - K * Hu * C;
+      if (!K.allFinite() || !Cn.allFinite()) continue;
+      G.noalias() -= K * batch_.J.template middleRows<2>(2 * b);
+      model_.setReference(id, model_.reference(id) + K * batch_.residual.template segment<2>(2 * b) + G * d);
+      C = 0.5 * (Cn + Cn.transpose());
+    }
+    // Points of the last frame not observed in this one: marginalized over the state.
+    for (int id : cond_active_) {
+      if (id < np && cond_seen_[id]) continue;
+      auto G = cond_G_.template middleRows<2>(2 * id);
+      if (fs->iterations <= 1) model_.setReference(id, model_.reference(id) + G * d);
+      cond_GP_.noalias() = G * P;
+      ref_cov_[id].noalias() += cond_GP_ * G.transpose();
+      G.setZero();
+    }
+    cond_active_.clear();
+    for (size_t b = 0; b < cond_used_.size(); ++b) cond_active_.push_back(obs[cond_used_[b]].id);
+    cond_center_ = x;
   }
   /// Iterated EKF with backtracking (FilterOptions::iterations > 1). Gauss-Newton on the MAP cost
   ///   J(x) = sum_b r_b(x)^T R_b^-1 r_b(x) + (x - x^-)^T P^-^-1 (x - x^-)
@@ -450,6 +677,19 @@ class RecursiveFilter {
   /// FilterOptions::Adaptation: the window's mean of z per block (translation, rotation) and the
   /// scales it gives (both 1 at the start: Q = Q0).
   Eigen::Vector2d adapt_mean_ = Eigen::Vector2d::Ones(), adapt_scale_ = Eigen::Vector2d::Ones();
+  // ReferenceModel::Conditional: each point's gain on the state (rows 2i, 2i + 1; every state
+  // column), the points in the conditional form (observed in the last frame), the state mean
+  // they are centred on, and per-step work space.
+  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> cond_G_;
+  std::vector<int> cond_active_, cond_used_, cond_ids_, cond_free_, cond_q_;
+  std::vector<std::uint8_t> cond_seen_, cond_accepted_;
+  std::vector<Eigen::Matrix2d> cond_hu_;
+  std::vector<Eigen::Vector2d> cond_saved_;
+  Eigen::VectorXd cond_center_, cond_d_;
+  Eigen::MatrixXd cond_M_, cond_Sig_, cond_W_, cond_E_, cond_Gq_, cond_GS_, cond_GP_;
+  Eigen::LDLT<Eigen::MatrixXd> cond_ldlt_;
+  Eigen::Matrix<double, 6, Eigen::Dynamic> cond_M6_;
+  BlockBatch cond_compact_;
   // Per-step work space, kept so that a step allocates nothing once warm (issue 15).
   FrameStats fs_;
   BlockBatch batch_;

@@ -19,13 +19,18 @@ namespace rsfm {
 /// the reference positions are part of x (ReferenceModel::State): point i's Hu = dh/d(u, v)^1
 /// goes to columns reference_index + 2i. Observations whose prediction fails are left out and
 /// counted in *invalid (the first reason in *first_problem); `used` (optional) receives the
-/// observation index of each block.
-template <class Model>
+/// observation index of each block. `hook` (optional) is called as hook(b, point, Hu, batch)
+/// once block b's rows are written (ReferenceModel::Conditional adds Hu G_i to them there).
+struct NoBlockHook {
+  void operator()(int, int, const Eigen::Matrix2d&, BlockBatch*) const {}
+  static constexpr bool kNeedsHu = false;
+};
+template <class Model, class Hook = NoBlockHook>
 void linearizeObservations(const Model& model, const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,
                            const std::vector<Observation>& obs, double sigma,
                            const std::vector<Eigen::Matrix2d>* ref_cov, BlockBatch* batch,
                            int* invalid, MeasureStatus* first_problem, std::vector<int>* used,
-                           int reference_index = -1) {
+                           int reference_index = -1, const Hook& hook = Hook()) {
   constexpr int S = Model::kStructurePerPoint;
   const MotionContext m = MotionContext::fromState(x, Rg);
   // Compact layout (ekf.hpp): the 7 motion columns shared, then the point's S structure columns
@@ -35,7 +40,7 @@ void linearizeObservations(const Model& model, const Eigen::VectorXd& x, const E
   if (used) used->clear();
   *invalid = 0;
   *first_problem = MeasureStatus::Ok;
-  const bool need_hu = ref_cov || reference_index >= 0;
+  const bool need_hu = ref_cov || reference_index >= 0 || Hook::kNeedsHu;
   const Eigen::Matrix2d R0 = Eigen::Matrix2d::Identity() * sigma * sigma;
   int b = 0;
   for (int k = 0; k < static_cast<int>(obs.size()); ++k) {
@@ -66,6 +71,7 @@ void linearizeObservations(const Model& model, const Eigen::VectorXd& x, const E
       batch->R.template block<2, 2>(2 * b, 0) = R0 + Hu * (*ref_cov)[o.id] * Hu.transpose();
     else
       batch->R.template block<2, 2>(2 * b, 0) = R0;
+    hook(b, o.id, Hu, batch);
     if (used) used->push_back(k);
     ++b;
   }
