@@ -383,18 +383,76 @@ class RecursiveFilter {
     linearizeObservations(model_, x, Rg_, obs, opt_.sigma_uv, rc, &cond_compact_, invalid, problem, used, -1, CondHook{this});
     if (shifted)
       for (int id : cond_active_) model_.setReference(id, cond_saved_[id]);
+    batch->reserve(cond_compact_.blocks, 2, n, 0);
+    if (n == kOnePlaneWidth) conditionalAssemble<kOnePlaneWidth>(batch);
+    else conditionalAssemble<Eigen::Dynamic>(batch);
+  }
+  // ReferenceModel::Conditional's per-point loops, with the state's width W known at compile time
+  // for the one-plane model (10) and dynamic otherwise.
+  static constexpr int kOnePlaneWidth = 10;
+  template <int W>
+  using CondRows = Eigen::Map<Eigen::Matrix<double, 2, W, Eigen::RowMajor>, 0, Eigen::OuterStride<>>;
+  template <int W>
+  CondRows<W> condGain(int id) {
+    const Eigen::Index n = cond_G_.cols();
+    return CondRows<W>(cond_G_.data() + 2 * id * n, 2, n, Eigen::OuterStride<>(n));
+  }
+  template <int W>
+  CondRows<W> batchRows(BlockBatch* batch, int b) {
+    const Eigen::Index n = batch->width(), stride = batch->J.cols();
+    return CondRows<W>(batch->J.data() + 2 * b * stride, 2, n, Eigen::OuterStride<>(stride));
+  }
+  /// The dense batch of total Jacobians H_i + Hu_i G_i from the compact one.
+  template <int W>
+  void conditionalAssemble(BlockBatch* batch) {
     constexpr int S = Model::kStructurePerPoint;
     const BlockBatch& c = cond_compact_;
-    batch->reserve(c.blocks, 2, n, 0);
     for (int b = 0; b < c.blocks; ++b) {
-      auto J = batch->J.template middleRows<2>(2 * b);
-      J.noalias() = cond_hu_[b] * cond_G_.template middleRows<2>(2 * cond_ids_[b]);
+      CondRows<W> J = batchRows<W>(batch, b);
+      J.noalias() = cond_hu_[b] * condGain<W>(cond_ids_[b]);
       J.template leftCols<7>() += c.J.template block<2, 7>(2 * b, 0);
       for (int j = 0; j < S; ++j) J.col(c.cols(b, j)) += c.J.col(7 + j).template segment<2>(2 * b);
       batch->residual.template segment<2>(2 * b) = c.residual.template segment<2>(2 * b);
       batch->R.template block<2, 2>(2 * b, 0) = c.R.template block<2, 2>(2 * b, 0);
     }
     batch->blocks = c.blocks;
+  }
+  /// The process noise's step on every conditional (motion-only noise).
+  template <int W>
+  void conditionalPredictMotion() {
+    const Eigen::Matrix<double, 6, 6> Sig = cond_Sig_;
+    const Eigen::Map<const Eigen::Matrix<double, 6, W>> M(cond_M_.data(), 6, cond_M_.cols());  // nq = 6 rows
+    for (int id : cond_active_) {
+      CondRows<W> G = condGain<W>(id);
+      const Eigen::Matrix<double, 2, 6> Gq = G.template leftCols<6>();
+      G.noalias() -= Gq * M;
+      ref_cov_[id].noalias() += (Gq * Sig) * Gq.transpose();
+    }
+  }
+  /// The conditionals' update over the blocks of the last linearization (batch_), d = x+ - x^.
+  template <int W>
+  void conditionalUpdateBlocks(const std::vector<Observation>& obs) {
+    const Eigen::Map<const Eigen::Matrix<double, W, 1>> d(cond_d_.data(), cond_d_.size());
+    for (size_t b = 0; b < cond_used_.size(); ++b) {
+      const int k = cond_used_[b];
+      const int id = obs[k].id;
+      cond_seen_[id] = 1;
+      CondRows<W> G = condGain<W>(id);
+      if (!cond_accepted_[k]) {  // gated: only carried to the new mean
+        model_.setReference(id, model_.reference(id) + G * d);
+        continue;
+      }
+      const Eigen::Matrix2d& Hu = cond_hu_[b];
+      const Eigen::Matrix2d D = batch_.R.template block<2, 2>(2 * b, 0);
+      Eigen::Matrix2d& C = ref_cov_[id];
+      // K = C Hu^T D^-1 (D = sigma^2 I + Hu C Hu^T is positive definite).
+      const Eigen::Matrix2d K = (D.inverse() * Hu * C).transpose();
+      const Eigen::Matrix2d Cn = C - K * Hu * C;
+      if (!K.allFinite() || !Cn.allFinite()) continue;
+      G.noalias() -= K * batchRows<W>(&batch_, static_cast<int>(b));
+      model_.setReference(id, model_.reference(id) + K * batch_.residual.template segment<2>(2 * b) + G * d);
+      C = 0.5 * (Cn + Cn.transpose());
+    }
   }
   /// FilterOptions::Adaptation after an applied step: the frame's motion delta (t_X, t_Y, t_Z beta,
   /// omega; the prior was `before`, identity dynamics) in units of Q0, per block, into the
@@ -507,15 +565,8 @@ class RecursiveFilter {
     bool motion_only = nq == 6;  // the usual case: noise on the 6 motion components alone
     for (int c = 0; motion_only && c < 6; ++c) motion_only = cond_q_[c] == c;
     if (motion_only) {
-      // Fixed-size blocks (no dynamic products per point).
-      const Eigen::Matrix<double, 6, 6> Sig = cond_Sig_;
-      cond_M6_ = cond_M_;
-      for (int id : cond_active_) {
-        auto G = cond_G_.template middleRows<2>(2 * id);
-        const Eigen::Matrix<double, 2, 6> Gq = G.template leftCols<6>();
-        G.noalias() -= Gq * cond_M6_;
-        ref_cov_[id].noalias() += (Gq * Sig) * Gq.transpose();
-      }
+      if (n == kOnePlaneWidth) conditionalPredictMotion<kOnePlaneWidth>();
+      else conditionalPredictMotion<Eigen::Dynamic>();
       return;
     }
     cond_Gq_.resize(2, nq);
@@ -554,26 +605,8 @@ class RecursiveFilter {
     }
     cond_d_ = x - cond_center_;
     const Eigen::VectorXd& d = cond_d_;
-    for (size_t b = 0; b < cond_used_.size(); ++b) {
-      const int k = cond_used_[b];
-      const int id = obs[k].id;
-      cond_seen_[id] = 1;
-      auto G = cond_G_.template middleRows<2>(2 * id);
-      if (!cond_accepted_[k]) {  // gated: only carried to the new mean
-        model_.setReference(id, model_.reference(id) + G * d);
-        continue;
-      }
-      const Eigen::Matrix2d& Hu = cond_hu_[b];
-      const Eigen::Matrix2d D = batch_.R.template block<2, 2>(2 * b, 0);
-      Eigen::Matrix2d& C = ref_cov_[id];
-      // K = C Hu^T D^-1 (D = sigma^2 I + Hu C Hu^T is positive definite).
-      const Eigen::Matrix2d K = (D.inverse() * Hu * C).transpose();
-      const Eigen::Matrix2d Cn = C - K * Hu * C;
-      if (!K.allFinite() || !Cn.allFinite()) continue;
-      G.noalias() -= K * batch_.J.template middleRows<2>(2 * b);
-      model_.setReference(id, model_.reference(id) + K * batch_.residual.template segment<2>(2 * b) + G * d);
-      C = 0.5 * (Cn + Cn.transpose());
-    }
+    if (x.size() == kOnePlaneWidth) conditionalUpdateBlocks<kOnePlaneWidth>(obs);
+    else conditionalUpdateBlocks<Eigen::Dynamic>(obs);
     // Points of the last frame not observed in this one: marginalized over the state.
     for (int id : cond_active_) {
       if (id < np && cond_seen_[id]) continue;
@@ -688,7 +721,6 @@ class RecursiveFilter {
   Eigen::VectorXd cond_center_, cond_d_;
   Eigen::MatrixXd cond_M_, cond_Sig_, cond_W_, cond_E_, cond_Gq_, cond_GS_, cond_GP_;
   Eigen::LDLT<Eigen::MatrixXd> cond_ldlt_;
-  Eigen::Matrix<double, 6, Eigen::Dynamic> cond_M6_;
   BlockBatch cond_compact_;
   // Per-step work space, kept so that a step allocates nothing once warm (issue 15).
   FrameStats fs_;
