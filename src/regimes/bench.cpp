@@ -1,5 +1,6 @@
 #include "rsfm/regimes/bench.hpp"
 #include "rsfm/clock.hpp"
+#include "../io/csv_fields.hpp"
 
 #include <fcntl.h>
 #include <spawn.h>
@@ -675,13 +676,8 @@ std::string scoreboardCsv(const BenchResult& res) {
     return v.empty() ? std::string() : fmt::format("{:.2f}", *std::max_element(v.begin(), v.end()));
   };
   // Each aggregate row is written by column name, in the header's order.
-  std::vector<std::string> columns;
-  for (std::size_t p = 0, q; p <= std::string_view(kCsvHeader).size(); p = q + 1) {
-    q = std::string_view(kCsvHeader).find(',', p);
-    if (q == std::string_view::npos) q = std::string_view(kCsvHeader).size();
-    columns.emplace_back(std::string_view(kCsvHeader).substr(p, q - p));
-  }
-  auto row = [&](const std::string& name, const std::string& message, const std::map<std::string, std::string>& values) {
+  const std::vector<std::string_view> columns = io::detail::split(kCsvHeader, ',');
+  auto row = [&](const std::string& name, const std::string& message, const std::map<std::string_view, std::string>& values) {
     std::string line;
     for (std::size_t c = 0; c < columns.size(); ++c) {
       std::string v;
@@ -701,20 +697,18 @@ std::string scoreboardCsv(const BenchResult& res) {
        {"normals_in_95", share(a.normal_cov, a.normal_pairs)},
        {"online_focal_in_95", share(a.online_focal_cov, a.focal_pairs)},
        {"online_normals_in_95", share(a.online_normal_cov, a.normal_pairs)}});
-  row("aggregate:median", "median of |error| over sequences",
-      {{"focal_err_pct", med(a.focal_err)},
-       {"worst_normal_err_deg", med(a.normal_err)},
-       {"face_angle_err_deg", med(a.face_err)},
-       {"ate_pct", med(a.ate)},
-       {"online_focal_err_pct", med(a.online_focal_err)},
-       {"online_worst_normal_err_deg", med(a.online_normal_err)}});
-  row("aggregate:worst", "worst |error| over sequences",
-      {{"focal_err_pct", worst(a.focal_err)},
-       {"worst_normal_err_deg", worst(a.normal_err)},
-       {"face_angle_err_deg", worst(a.face_err)},
-       {"ate_pct", worst(a.ate)},
-       {"online_focal_err_pct", worst(a.online_focal_err)},
-       {"online_worst_normal_err_deg", worst(a.online_normal_err)}});
+  // The median and the worst rows: one statistic of the same error columns.
+  auto errorRow = [&](const std::string& name, const std::string& message, const auto& stat) {
+    row(name, message,
+        {{"focal_err_pct", stat(a.focal_err)},
+         {"worst_normal_err_deg", stat(a.normal_err)},
+         {"face_angle_err_deg", stat(a.face_err)},
+         {"ate_pct", stat(a.ate)},
+         {"online_focal_err_pct", stat(a.online_focal_err)},
+         {"online_worst_normal_err_deg", stat(a.online_normal_err)}});
+  };
+  errorRow("aggregate:median", "median of |error| over sequences", med);
+  errorRow("aggregate:worst", "worst |error| over sequences", worst);
   return s;
 }
 
