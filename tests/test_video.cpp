@@ -718,6 +718,32 @@ TEST(PlaneStart, TheDataChooseTheStartNotTheOrder) {
   }
 }
 
+TEST(PlaneStart, AFocalLengthAtTheGridsEndKeepsTheGuesssWidth) {
+  // A decomposition's focal length at an end of the focal grid (no minimum of the homographies'
+  // disagreement) is not determined by them: rsfm::startOptions keeps beta's prior sd at the
+  // guess's width (kGuessBetaSd0) instead of a start's 0.1, while its normals and relative
+  // distances still start the planes; a width the user gives is kept either way. Measured on
+  // box.mp4@4 (docs/regimes.md): from a 1920 px start (3.3x the focal length) with sd 0.1 the
+  // filter held 1660-2440 px and the refinement ended not determined; with 0.3, 578 px.
+  vision::StartHypothesis h;
+  h.focal_px = 1920.0;
+  h.normals = {Eigen::Vector3d(0.0, 0.6, 0.8), Eigen::Vector3d(0.6, -0.8, 0.0)};
+  h.distance_ratios = {1.0, 0.5};
+  TrackFilterOptions base;
+  for (bool end : {false, true}) {
+    h.at_grid_end = end;
+    const TrackFilterOptions o = startOptions(base, h, 2);
+    ASSERT_TRUE(o.beta_sd0.has_value());
+    EXPECT_DOUBLE_EQ(*o.beta_sd0, end ? TrackFilterOptions::kGuessBetaSd0 : 0.1);
+    ASSERT_TRUE(o.normal_sd0.has_value());
+    EXPECT_DOUBLE_EQ(*o.normal_sd0, 0.1) << "the normals are the decomposition's either way";
+    EXPECT_DOUBLE_EQ(o.focal0_px, 1920.0);
+    ASSERT_EQ(o.initial_normals.size(), 2u);
+  }
+  base.beta_sd0 = 0.05;
+  EXPECT_DOUBLE_EQ(*startOptions(base, h, 2).beta_sd0, 0.05) << "a given width is the user's";
+}
+
 TEST(TrackFilter, RecoversFocalAndFaceAnglesFromPixelTracks) {
   // The whole estimate on pixel tracks of the box scene (orthogonal faces, 0.5 px noise, focal
   // 256 px), with labels from the plane finder and the homography start. Tolerances: the start's

@@ -72,7 +72,12 @@ TrackFilterOptions startOptions(const TrackFilterOptions& base, const vision::St
   if (h.frontal) return o;
   if (o.focal_px <= 0 && o.focal0_px <= 0) o.focal0_px = h.focal_px;
   if (!o.normal_sd0) o.normal_sd0 = 0.1;
-  if (!o.beta_sd0) o.beta_sd0 = 0.1;
+  // A focal length at an end of the grid is not determined by the homographies (no minimum of
+  // their disagreement was found): it keeps the width of a guess, not a start's 0.1. With 0.1
+  // the filter started from box.mp4@4's 1920 px (3.3x the focal length) held it at 1660-2440 px
+  // and the refinement from there ended not determined; with the guess's 0.3 it reaches the
+  // other windows' optimum (578 px, faces 88.8 deg). docs/estimate.md, "Start".
+  if (!o.beta_sd0) o.beta_sd0 = h.at_grid_end ? TrackFilterOptions::kGuessBetaSd0 : 0.1;
   o.initial_normals.assign(h.normals.begin(), h.normals.begin() + m);
   o.initial_distance_ratios.assign(h.distance_ratios.begin(), h.distance_ratios.begin() + m);
   o.start_rotation_deg_per_frame = h.rotation_deg_per_frame;

@@ -104,7 +104,8 @@ struct EstimateResult {
 /// The filter's options for one start hypothesis (vision/plane_init.hpp) of a run of `m` planes:
 /// a decomposition sets the focal guess (unless the focal length is known or guessed in `base`),
 /// the normals, the relative distances, the prior widths after a homography start (0.1,
-/// unless given) and the motion it measured (where the process noise starts,
+/// unless given; beta's stays the guess's TrackFilterOptions::kGuessBetaSd0 when the focal
+/// length is at an end of the grid, StartHypothesis::at_grid_end) and the motion it measured (where the process noise starts,
 /// TrackFilterOptions::q_from_data); the frontal hypothesis leaves `base`'s own guesses.
 TrackFilterOptions startOptions(const TrackFilterOptions& base, const vision::StartHypothesis& h, int m);
 

@@ -33,7 +33,8 @@ struct TrackFilterOptions {
   double focal_px = 0.0;     ///< known focal length (px): beta fixed at s / focal_px (<= 0: estimated)
   double focal0_px = 0.0;    ///< initial focal guess (px) (<= 0: max(width, height), ~53 deg across)
   /// Initial standard deviation of beta, relative to beta0. Unset: 0.3 for a guessed focal
-  /// length, 0.1 after a homography start (estimate(), pipeline/estimate.hpp).
+  /// length (also after a homography start whose focal length is at an end of its grid), 0.1
+  /// after a homography start (startOptions(), pipeline/estimate.hpp).
   std::optional<double> beta_sd0;
   /// The measurement noise sd per axis (px). runTrackFilter uses it as given; estimate() takes
   /// it as a floor and raises it to the measured tracking noise (docs/estimate.md section 3).
