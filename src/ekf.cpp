@@ -586,6 +586,8 @@ bool Ekf::vectorKernelAvailable() { return cpuHasAvx2Fma(); }
 
 bool Ekf::useVectorKernel(bool enable) { return g_vector_kernel.exchange(enable); }
 
+bool Ekf::vectorKernelEnabled() { return cpuHasAvx2Fma() && g_vector_kernel.load(std::memory_order_relaxed); }
+
 // The fused two-row path (issue 15 item 1). The blocks all depend on the same W free columns,
 // and these are the free components in order, so with P_f = G G^T (Cholesky, G lower triangular)
 // block b's whitened rows are A_b = L_b^-1 H_b G with A_b(:, c) = sum_{j >= c} H_b(:, j) G(j, c):

@@ -188,6 +188,42 @@ TEST(ConditionalReferences, AreTheStateFiltersEstimateWithoutProcessNoise) {
   }
 }
 
+TEST(ConditionalReferences, TheVectorKernelsEqualTheEigenLoops) {
+  // The one-plane model's conditional loops (process step, total Jacobian, gain update) have
+  // AVX2/FMA kernels (filters/conditional_kernels.hpp) chosen at run time; they must give the
+  // Eigen loops' results up to rounding. Table 1 scene, 60 points at 1 px, 30 frames, with the
+  // default process noise (the process step runs) and gate; some points leave for a few frames
+  // (the unobserved ones are marginalized) so every branch is taken. Tolerance 1e-9 relative.
+  if (!Ekf::vectorKernelAvailable()) GTEST_SKIP() << "this CPU has no AVX2/FMA: the vector kernels cannot run here";
+  const NoisyTable1 t = noisyTable1(60, 1.0, 17, 30);
+  FilterOptions fo;
+  fo.sigma_uv = 1.0 / t.so.scale_px;
+  fo.reference = ReferenceModel::Conditional;
+  RecursiveFilter<PlaneModel> eigen = table1PlaneFilter(t.scene, fo), vec = table1PlaneFilter(t.scene, fo);
+  double worst = 0.0;
+  for (int k = 1; k <= t.so.frames; ++k) {
+    std::vector<Observation> obs = frameObservations(t, k);
+    if (k % 7 == 3) obs.erase(obs.begin() + 10, obs.begin() + 20);  // points 10-19 unseen this frame
+    const bool previous = Ekf::useVectorKernel(false);
+    const FrameStats se = eigen.step(obs);
+    Ekf::useVectorKernel(true);
+    const FrameStats sv = vec.step(obs);
+    Ekf::useVectorKernel(previous);
+    ASSERT_TRUE(se.ok() && sv.ok()) << "frame " << k;
+    ASSERT_EQ(se.update.gated, sv.update.gated) << "frame " << k;
+    const Eigen::VectorXd& xe = eigen.ekf().x();
+    worst = std::max(worst, (xe - vec.ekf().x()).cwiseAbs().maxCoeff() / (1.0 + xe.cwiseAbs().maxCoeff()));
+    worst = std::max(worst, (eigen.ekf().P() - vec.ekf().P()).cwiseAbs().maxCoeff() / eigen.ekf().P().cwiseAbs().maxCoeff());
+    for (int i = 0; i < 60; ++i) {
+      worst = std::max(worst, (eigen.model().reference(i) - vec.model().reference(i)).norm());
+      const Eigen::Matrix2d& ce = eigen.referenceCovariances()[i];
+      worst = std::max(worst, (ce - vec.referenceCovariances()[i]).cwiseAbs().maxCoeff() / ce.cwiseAbs().maxCoeff());
+    }
+  }
+  EXPECT_LT(worst, 1e-9);
+  std::cout << "[ note ] largest relative difference, vector kernels against the Eigen loops: " << worst << "\n";
+}
+
 /// Normal error (deg), signed beta error (%) and beta's z^2 at the last frame of one run.
 struct EndErrors {
   double normal_deg, beta_pct, beta_z2;

@@ -178,6 +178,9 @@ class Ekf {
   /// Allows (true, the default) or forbids the AVX2/FMA kernel for the whole process, for tests
   /// and benchmarks that compare the two kernels; returns the previous setting.
   static bool useVectorKernel(bool enable);
+  /// The vector kernels may run: this CPU has them and useVectorKernel has not forbidden them
+  /// (also read by the conditional references' kernels, filters/conditional_kernels.hpp).
+  static bool vectorKernelEnabled();
 
  private:
   /// Factors the free part of P (P_f = G G^T) into the work space; false (stats->health set) when
