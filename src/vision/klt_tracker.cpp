@@ -68,6 +68,7 @@ void KltTracker::detect(const cv::Mat& gray, bool first) {
       if (!a.tmpl.init(cur_float_, px, o_.affine)) continue;  // textureless or at the border
       anchors_[next_id_] = std::move(a);
     }
+    first_px_.push_back(px);  // ids ascend from 0: first_px_[id]
     cur_.push_back({next_id_++, px});
     vel_.push_back(Eigen::Vector2d::Constant(std::numeric_limits<double>::quiet_NaN()));
   }
@@ -205,7 +206,15 @@ void KltTracker::process(const cv::Mat& frame) {
     }
     cur_.swap(next);
     vel_.swap(next_vel);
-    if (static_cast<double>(cur_.size()) < o_.redetect_below * o_.max_tracks) detect(gray, false);
+    int moving = 0;
+    for (const auto& t : cur_) moving += (t.px - first_px_[static_cast<size_t>(t.id)]).norm() > o_.moving_px;
+    moving_peak_ = std::max(moving_peak_, moving);
+    const bool few = static_cast<double>(cur_.size()) < o_.redetect_below * o_.max_tracks;
+    const bool few_moving = moving_peak_ >= o_.min_moving && static_cast<double>(moving) < o_.redetect_below * moving_peak_;
+    if (few || few_moving) {
+      detect(gray, false);
+      moving_peak_ = moving;
+    }
   }
   // Ids ascend: survivors keep their order and detect() appends fresh, larger ids (the lookups
   // above and Tracks rely on it).

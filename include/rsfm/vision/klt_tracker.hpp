@@ -36,6 +36,12 @@ struct TrackerOptions {
   bool fb_check = true;
   double min_eig = 1e-4;            ///< LK minimum eigenvalue threshold (cv::OPTFLOW_LK_GET_MIN_EIGENVALS)
   double redetect_below = 0.7;      ///< re-detect when fewer than this fraction of max_tracks live
+  /// ... or when fewer than redetect_below of the most tracks that had moved (more than
+  /// moving_px from where they started) since the last detection still live, once at least
+  /// min_moving had: a hand-held object before a still background loses its tracks at a jerk
+  /// while the background keeps the count up, so the count alone never re-detects (issue 14).
+  double moving_px = 2.0;
+  int min_moving = 10;
   int border_px = 10;               ///< tracks closer than this to the border end
   /// Anchored tracking: after each frame-to-frame step every track is re-aligned to its own
   /// first appearance by inverse-compositional affine Lucas-Kanade (affine_lk.hpp), which removes
@@ -87,6 +93,8 @@ class KltTracker {
   long reanchored_ = 0;
   std::vector<std::vector<TrackPoint>> frames_;
   int next_id_ = 0;
+  std::vector<Eigen::Vector2d> first_px_;  ///< per track id: where it started
+  int moving_peak_ = 0;                    ///< most moving tracks alive since the last detection
   cv::Size size_;
 };
 
