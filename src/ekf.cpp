@@ -619,7 +619,7 @@ bool Ekf::fusedTwoRow(const BlockBatch& batch, const UpdateOptions& opt, UpdateS
   FusedSums<W> sums;
   bool done = false;
 #ifdef RSFM_AVX2_KERNEL
-  if (cpuHasAvx2Fma() && g_vector_kernel.load(std::memory_order_relaxed)) {
+  if (vectorKernelEnabled()) {
     done = fusedSumsAvx2<W>(in, Gs, &sums);
     if (!done) st->reset(nb);  // the portable pass reports the failure, block by block
   }

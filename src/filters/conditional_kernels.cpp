@@ -67,10 +67,10 @@ struct Row10 {
     const int id = ids[n];
     double* g0 = G + 20 * static_cast<long>(id);
     double* g1 = g0 + 10;
-    // The first 6 columns before the step (G_iq), and the rows to update.
-    const __m256d q0a = _mm256_loadu_pd(g0), q1a = _mm256_loadu_pd(g1);
-    const __m128d q0b = _mm_loadu_pd(g0 + 4), q1b = _mm_loadu_pd(g1 + 4);
+    // The rows to update, and their first 6 columns before the step (G_iq: columns 0-3, 4-5).
     Row10 r0 = load10(g0), r1 = load10(g1);
+    const __m256d q0a = r0.a, q1a = r1.a;
+    const __m128d q0b = _mm256_castpd256_pd128(r0.b), q1b = _mm256_castpd256_pd128(r1.b);
     __m256d w0a = _mm256_setzero_pd(), w1a = _mm256_setzero_pd();  // G_iq Sig, columns 0-3
     __m128d w0b = _mm_setzero_pd(), w1b = _mm_setzero_pd();        // columns 4-5
     for (int k = 0; k < 6; ++k) {

@@ -391,7 +391,7 @@ class RecursiveFilter {
   }
   // ReferenceModel::Conditional's per-point loops, with the state's width W known at compile time
   // for the one-plane model (10) and dynamic otherwise.
-  static constexpr int kOnePlaneWidth = 10;
+  static constexpr int kOnePlaneWidth = detail::kConditionalKernelWidth;  // 7 + 3 (the vector kernels' width)
   template <int W>
   using CondRows = Eigen::Map<Eigen::Matrix<double, 2, W, Eigen::RowMajor>, 0, Eigen::OuterStride<>>;
   /// A point's gain G_i (rows 2i, 2i + 1 of cond_G_, whose rows are n = cond_G_.cols() long, so
@@ -417,22 +417,20 @@ class RecursiveFilter {
     constexpr int S = Model::kStructurePerPoint;
     const BlockBatch& c = cond_compact_;
     bool vector_kernel = false;
-    if constexpr (W == detail::kConditionalKernelWidth && S == 3) vector_kernel = detail::conditionalKernelsEnabled();
+    if constexpr (W == kOnePlaneWidth && S == 3) vector_kernel = detail::conditionalKernelsEnabled();
     for (int b = 0; b < c.blocks; ++b) {
       if (vector_kernel && c.cols(b, 0) == 7 && c.cols(b, 1) == 8 && c.cols(b, 2) == 9) {
         // The compact row is then the dense one's H (structure in the state's columns 7-9).
         double* j0 = batch->J.data() + 2 * static_cast<Eigen::Index>(b) * batch->J.cols();
         const double* h0 = c.J.data() + 2 * static_cast<Eigen::Index>(b) * c.J.cols();
         detail::conditionalAssemble10(j0, j0 + batch->J.cols(), h0, h0 + c.J.cols(), cond_hu_[b].data(),
-                                      cond_G_.data() + 2 * static_cast<Eigen::Index>(cond_ids_[b]) * W);
-        batch->residual.template segment<2>(2 * b) = c.residual.template segment<2>(2 * b);
-        batch->R.template block<2, 2>(2 * b, 0) = c.R.template block<2, 2>(2 * b, 0);
-        continue;
+                                      condGain<W>(cond_ids_[b]).data());
+      } else {
+        CondRows<W> J = batchRows<W>(batch, b);
+        J.noalias() = cond_hu_[b] * condGain<W>(cond_ids_[b]);
+        J.template leftCols<7>() += c.J.template block<2, 7>(2 * b, 0);
+        for (int j = 0; j < S; ++j) J.col(c.cols(b, j)) += c.J.col(7 + j).template segment<2>(2 * b);
       }
-      CondRows<W> J = batchRows<W>(batch, b);
-      J.noalias() = cond_hu_[b] * condGain<W>(cond_ids_[b]);
-      J.template leftCols<7>() += c.J.template block<2, 7>(2 * b, 0);
-      for (int j = 0; j < S; ++j) J.col(c.cols(b, j)) += c.J.col(7 + j).template segment<2>(2 * b);
       batch->residual.template segment<2>(2 * b) = c.residual.template segment<2>(2 * b);
       batch->R.template block<2, 2>(2 * b, 0) = c.R.template block<2, 2>(2 * b, 0);
     }
@@ -441,15 +439,15 @@ class RecursiveFilter {
   /// The process noise's step on every conditional (motion-only noise).
   template <int W>
   void conditionalPredictMotion() {
-    const Eigen::Matrix<double, 6, 6> Sig = cond_Sig_;
-    const Eigen::Map<const Eigen::Matrix<double, 6, W>> M(cond_M_.data(), 6, cond_M_.cols());  // nq = 6 rows
-    if constexpr (W == detail::kConditionalKernelWidth) {
+    if constexpr (W == kOnePlaneWidth) {
       if (detail::conditionalKernelsEnabled()) {
         detail::conditionalPredict10(cond_G_.data(), ref_cov_.data(), cond_active_.data(), static_cast<int>(cond_active_.size()),
                                      cond_M_.data(), cond_Sig_.data());
         return;
       }
     }
+    const Eigen::Matrix<double, 6, 6> Sig = cond_Sig_;
+    const Eigen::Map<const Eigen::Matrix<double, 6, W>> M(cond_M_.data(), 6, cond_M_.cols());  // nq = 6 rows
     for (int id : cond_active_) {
       CondGain<W> G = condGain<W>(id);
       const Eigen::Matrix<double, 2, 6> Gq = G.template leftCols<6>();
@@ -462,7 +460,7 @@ class RecursiveFilter {
   template <int W>
   void conditionalUpdateBlocks(const std::vector<Observation>& obs) {
     bool vector_kernel = false;
-    if constexpr (W == detail::kConditionalKernelWidth) vector_kernel = detail::conditionalKernelsEnabled();
+    if constexpr (W == kOnePlaneWidth) vector_kernel = detail::conditionalKernelsEnabled();
     const Eigen::Map<const Eigen::Matrix<double, W, 1>> d(cond_d_.data(), cond_d_.size());
     for (size_t b = 0; b < cond_used_.size(); ++b) {
       const int k = cond_used_[b];
@@ -480,21 +478,20 @@ class RecursiveFilter {
       const Eigen::Matrix2d K = (D.inverse() * Hu * C).transpose();
       const Eigen::Matrix2d Cn = C - K * Hu * C;
       if (!std::isfinite(K.sum() + Cn.sum())) continue;  // one test for any NaN or Inf in either
+      Eigen::Vector2d gd;  // G d after G's update
       if (vector_kernel) {
         const double* a0 = batch_.J.data() + 2 * static_cast<Eigen::Index>(b) * batch_.J.cols();
-        Eigen::Vector2d gd;
         detail::conditionalGainUpdate10(G.data(), a0, a0 + batch_.J.cols(), K.data(), cond_d_.data(), gd.data());
-        model_.setReference(id, model_.reference(id) + K * batch_.residual.template segment<2>(2 * b) + gd);
-        C = 0.5 * (Cn + Cn.transpose());
-        continue;
-      }
-      if constexpr (W != Eigen::Dynamic) {
-        const Eigen::Matrix<double, 2, W, Eigen::RowMajor> A = batchRows<W>(&batch_, static_cast<int>(b));
-        G.noalias() -= K * A;
       } else {
-        G.noalias() -= K * batchRows<W>(&batch_, static_cast<int>(b));
+        if constexpr (W != Eigen::Dynamic) {
+          const Eigen::Matrix<double, 2, W, Eigen::RowMajor> A = batchRows<W>(&batch_, static_cast<int>(b));
+          G.noalias() -= K * A;
+        } else {
+          G.noalias() -= K * batchRows<W>(&batch_, static_cast<int>(b));
+        }
+        gd.noalias() = G * d;
       }
-      model_.setReference(id, model_.reference(id) + K * batch_.residual.template segment<2>(2 * b) + G * d);
+      model_.setReference(id, model_.reference(id) + K * batch_.residual.template segment<2>(2 * b) + gd);
       C = 0.5 * (Cn + Cn.transpose());
     }
   }
