@@ -50,25 +50,55 @@ cv::Point2d pt(const TrackPoint& t) { return {t.px.x(), t.px.y()}; }
 bool fitH(const std::vector<cv::Point2d>& a, const std::vector<cv::Point2d>& b, cv::Matx33d* H) {
   const size_t n = a.size();
   if (n < 4) return false;
-  auto normalizer = [](const std::vector<cv::Point2d>& p) {
-    cv::Point2d c(0, 0);
-    for (const auto& q : p) c += q;
-    c *= 1.0 / p.size();
-    double d = 0;
-    for (const auto& q : p) d += std::hypot(q.x - c.x, q.y - c.y);
-    d /= p.size();
-    const double s = d > 1e-12 ? std::sqrt(2.0) / d : 1.0;
-    return cv::Matx33d(s, 0, -s * c.x, 0, s, -s * c.y, 0, 0, 1);
+  // Hartley's normalization: centroid to the origin, mean distance sqrt(2).
+  struct Norm {
+    double s, cx, cy;
   };
-  const cv::Matx33d Ta = normalizer(a), Tb = normalizer(b);
-  Eigen::Matrix<double, 9, 9> M = Eigen::Matrix<double, 9, 9>::Zero();
+  auto normalizer = [](const std::vector<cv::Point2d>& p) {
+    double cx = 0, cy = 0;
+    for (const auto& q : p) {
+      cx += q.x;
+      cy += q.y;
+    }
+    cx /= static_cast<double>(p.size());
+    cy /= static_cast<double>(p.size());
+    double d = 0;
+    for (const auto& q : p) d += std::sqrt((q.x - cx) * (q.x - cx) + (q.y - cy) * (q.y - cy));
+    d /= static_cast<double>(p.size());
+    return Norm{d > 1e-12 ? std::sqrt(2.0) / d : 1.0, cx, cy};
+  };
+  const Norm na = normalizer(a), nb = normalizer(b);
+  const cv::Matx33d Ta(na.s, 0, -na.s * na.cx, 0, na.s, -na.s * na.cy, 0, 0, 1);
+  const cv::Matx33d Tb(nb.s, 0, -nb.s * nb.cx, 0, nb.s, -nb.s * nb.cy, 0, 0, 1);
+  // A^T A from its structure: with P = (p, 1) and the rows r1 = (P, 0, -q_x P),
+  // r2 = (0, P, -q_y P), sum r1 r1^T + r2 r2^T has 3 x 3 blocks S, 0, -Sx / 0, S, -Sy /
+  // -Sx, -Sy, Sxy for S = sum P P^T, Sx = sum q_x P P^T, Sy = sum q_y P P^T,
+  // Sxy = sum (q_x^2 + q_y^2) P P^T: the six distinct entries of P P^T weighted four ways per
+  // point instead of two 9 x 9 outer products.
+  double acc[4][6] = {};
   for (size_t i = 0; i < n; ++i) {
-    const cv::Vec3d p = Ta * cv::Vec3d(a[i].x, a[i].y, 1.0), q = Tb * cv::Vec3d(b[i].x, b[i].y, 1.0);
-    Eigen::Matrix<double, 9, 1> r1, r2;
-    r1 << p[0], p[1], 1, 0, 0, 0, -q[0] * p[0], -q[0] * p[1], -q[0];
-    r2 << 0, 0, 0, p[0], p[1], 1, -q[1] * p[0], -q[1] * p[1], -q[1];
-    M.noalias() += r1 * r1.transpose() + r2 * r2.transpose();
+    const double px = na.s * (a[i].x - na.cx), py = na.s * (a[i].y - na.cy);
+    const double qx = nb.s * (b[i].x - nb.cx), qy = nb.s * (b[i].y - nb.cy);
+    const double pp[6] = {px * px, px * py, px, py * py, py, 1.0};
+    const double w[4] = {1.0, qx, qy, qx * qx + qy * qy};
+    for (int j = 0; j < 4; ++j)
+      for (int e = 0; e < 6; ++e) acc[j][e] += w[j] * pp[e];
   }
+  auto block = [&](int j) {
+    const double* v = acc[j];
+    Eigen::Matrix3d B;
+    B << v[0], v[1], v[2], v[1], v[3], v[4], v[2], v[4], v[5];
+    return B;
+  };
+  const Eigen::Matrix3d S = block(0), Sx = block(1), Sy = block(2), Sxy = block(3);
+  Eigen::Matrix<double, 9, 9> M = Eigen::Matrix<double, 9, 9>::Zero();
+  M.block<3, 3>(0, 0) = S;
+  M.block<3, 3>(3, 3) = S;
+  M.block<3, 3>(0, 6) = -Sx;
+  M.block<3, 3>(6, 0) = -Sx;
+  M.block<3, 3>(3, 6) = -Sy;
+  M.block<3, 3>(6, 3) = -Sy;
+  M.block<3, 3>(6, 6) = Sxy;
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 9, 9>> es(M);
   if (es.info() != Eigen::Success) return false;
   const Eigen::Matrix<double, 9, 1> h = es.eigenvectors().col(0);
@@ -293,26 +323,46 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
   // reference tracks' lives but never outvote them.
   std::vector<char> joined(ids, 0);
   const double ransac_px = tol.ransac_px, verify_px = tol.verify_px;
+  // The members' points in frame k, in the members' order (nullptr: not in view): one merge of
+  // the ids sorted once with the frame's (sorted by id), not a search per member and frame.
+  std::vector<int> by_id;
+  auto pointsAt = [&](const std::vector<int>& members, int k, std::vector<const TrackPoint*>* at) {
+    at->assign(members.size(), nullptr);
+    const std::vector<TrackPoint>& f = tracks.frames[static_cast<size_t>(k)];
+    size_t j = 0;
+    for (int m : by_id) {
+      const int id = members[static_cast<size_t>(m)];
+      while (j < f.size() && f[j].id < id) ++j;
+      if (j == f.size()) break;
+      if (f[j].id == id) (*at)[static_cast<size_t>(m)] = &f[j];
+    }
+  };
+  auto sortById = [&](const std::vector<int>& members) {
+    by_id.resize(members.size());
+    std::iota(by_id.begin(), by_id.end(), 0);
+    std::sort(by_id.begin(), by_id.end(), [&](int x, int y) { return members[static_cast<size_t>(x)] < members[static_cast<size_t>(y)]; });
+  };
+  std::vector<const TrackPoint*> at;
   auto fitAllFrames = [&](FoundPlane* c) {
     std::vector<int> members = c->members;
+    const double verify2 = verify_px * verify_px;
     for (int round = 0; round < 2; ++round) {
       c->H.assign(F, cv::Matx33d::eye());
       c->support.assign(F, 0);
       c->support[0] = static_cast<int>(members.size());
       std::vector<char> bad(ids, 0);
+      sortById(members);
       for (int k = 1; k < F; ++k) {
+        pointsAt(members, k, &at);
         std::vector<cv::Point2d> a, b;
-        std::vector<int> who;
         auto collect = [&](bool with_joined) {
           a.clear();
           b.clear();
-          who.clear();
-          for (int id : members) {
-            const TrackPoint* pk = tracks.find(k, id);
-            if (std::isfinite(refpos[id].x) && pk && (with_joined || !joined[id])) {
+          for (size_t m = 0; m < members.size(); ++m) {
+            const int id = members[m];
+            if (std::isfinite(refpos[id].x) && at[m] && (with_joined || !joined[id])) {
               a.push_back(refpos[id]);
-              b.push_back(pt(*pk));
-              who.push_back(id);
+              b.push_back(pt(*at[m]));
             }
           }
         };
@@ -324,11 +374,13 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
         }
         c->support[k] = static_cast<int>(a.size());
         // Every member in view is tested against it.
-        for (int id : members) {
-          const TrackPoint* pk = tracks.find(k, id);
+        for (size_t m = 0; m < members.size(); ++m) {
+          const int id = members[m];
+          const TrackPoint* pk = at[m];
           if (!pk || !std::isfinite(refpos[id].x)) continue;
           const cv::Point2d q = apply(c->H[k], refpos[id]);
-          if (std::hypot(q.x - pk->px.x(), q.y - pk->px.y()) > verify_px) bad[id] = 1;
+          const double dx = q.x - pk->px.x(), dy = q.y - pk->px.y();
+          if (dx * dx + dy * dy > verify2) bad[id] = 1;
         }
       }
       std::vector<int> keep;
@@ -341,10 +393,13 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
     c->members = members;
     // Largest median displacement from the reference over the frames.
     double motion = 0.0;
+    sortById(members);
     for (int k = 1; k < F; k += std::max(1, F / 20)) {
       std::vector<double> d;
-      for (int id : members) {
-        const TrackPoint* pk = tracks.find(k, id);
+      pointsAt(members, k, &at);
+      for (size_t m = 0; m < members.size(); ++m) {
+        const int id = members[m];
+        const TrackPoint* pk = at[m];
         if (std::isfinite(refpos[id].x) && pk) d.push_back(std::hypot(pk->px.x() - refpos[id].x, pk->px.y() - refpos[id].y));
       }
       if (d.size() < 3) continue;

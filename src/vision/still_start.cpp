@@ -109,19 +109,20 @@ StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks)
   }
   s.threshold_px = std::max(still_px, 4.0 * s.noise_px);
   // Whether frame k moved from the run; adds it to the run when not. n < 8: cannot tell (-1).
+  // `moving` nullptr: only whether it moved is asked, and (b) below answers that without the
+  // homography when enough tracks moved on their own.
   auto test = [&](int k, int* moving) {
     match(k);
     const int n = static_cast<int>(a.size());
     if (n < 8) return -1;
+    int moved = 0;
+    for (int j = 0; j < n; ++j) moved += cv::norm(b[j] - a[j]) > s.threshold_px;
+    if (!moving && moved >= min_tracks) return 1;
     // The dominant motion: a homography, robust to the tracks of a smaller moving object.
     const cv::Mat H = cv::findHomography(a, b, cv::RANSAC, std::max(1.0, 3.0 * s.noise_px), cv::noArray(), 2000, 0.999);
     const cv::Matx33d h = H.empty() ? cv::Matx33d::eye() : cv::Matx33d(H);
     r.clear();
-    int moved = 0;
-    for (int j = 0; j < n; ++j) {
-      r.push_back(cv::norm(apply(h, a[j]) - a[j]));
-      moved += cv::norm(b[j] - a[j]) > s.threshold_px;
-    }
+    for (int j = 0; j < n; ++j) r.push_back(cv::norm(apply(h, a[j]) - a[j]));
     // (a) The dominant surface moved (a camera, or an object filling most of the view): its
     // homography's median displacement above still_px and above its own fit's noise, per axis
     // noise_px sqrt(8 / n) for the 8 parameters.
@@ -132,7 +133,7 @@ StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks)
     // motion within its noise, the identity is that motion; the homography itself is not the
     // reference: it bends towards a corner's moving tracks while they are its inliers.
     if (dominant || moved >= min_tracks) {
-      *moving = dominant ? n : moved;
+      if (moving) *moving = dominant ? n : moved;
       return 1;
     }
     for (int j = 0; j < n; ++j) {
@@ -160,7 +161,7 @@ StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks)
     stretch.clear();
   };
   for (++k; k < F; ++k) {
-    const int moved = test(k, &moving);
+    const int moved = test(k, nullptr);
     if (moved == 0) {
       stretch.push_back(k);
       continue;
