@@ -51,6 +51,28 @@ cv::Mat smoothTexture() {
   return tex;
 }
 
+/// A still textured top half (smoothTexture) over a belt carrying another texture to the right at
+/// 6 px per frame (bottom half of 400 x 300): the belt's tracks leave at the right border and new
+/// texture enters at the left, while the top half keeps its tracks (the moving re-detection's
+/// tests). frame(k), k = 0..kFrames-1.
+struct BeltScene {
+  static constexpr int kFrames = 25, kSpeed = 6;
+  cv::Mat top = smoothTexture();
+  cv::Mat wide = [] {
+    cv::Mat w(150, 1200, CV_8U);
+    cv::RNG rng(11);
+    cv::Mat noise(15, 120, CV_8U);
+    rng.fill(noise, cv::RNG::UNIFORM, 0, 255);
+    cv::resize(noise, w, w.size(), 0, 0, cv::INTER_CUBIC);
+    return w;
+  }();
+  cv::Mat frame(int k) const {
+    cv::Mat f = top.clone();
+    wide(cv::Rect(600 - kSpeed * k, 0, 400, 150)).copyTo(f(cv::Rect(0, 150, 400, 150)));
+    return f;
+  }
+};
+
 void writeText(const fs::path& p, const std::string& s) {
   std::ofstream o(p);
   o << s;
@@ -297,24 +319,12 @@ TEST(KltTracker, LostMovingTracksAreReplacedWhileAStillBackgroundKeepsTheCount) 
   // texture enters at the left. After 25 frames: tracks on the left of the belt (started after
   // frame 0) with the default, none with the moving trigger off (the count alone never fell
   // below 70 %).
-  const cv::Mat top = smoothTexture();
-  cv::Mat wide(150, 1200, CV_8U);
-  {
-    cv::RNG rng(11);
-    cv::Mat noise(15, 120, CV_8U);
-    rng.fill(noise, cv::RNG::UNIFORM, 0, 255);
-    cv::resize(noise, wide, wide.size(), 0, 0, cv::INTER_CUBIC);
-  }
-  const int F = 25, v = 6;
+  const BeltScene belt;
   auto leftBeltTracks = [&](int min_moving) {
     vision::TrackerOptions o;
     o.min_moving = min_moving;
     vision::KltTracker tr(o);
-    for (int k = 0; k < F; ++k) {
-      cv::Mat f = top.clone();
-      wide(cv::Rect(600 - v * k, 0, 400, 150)).copyTo(f(cv::Rect(0, 150, 400, 150)));
-      tr.process(f);
-    }
+    for (int k = 0; k < BeltScene::kFrames; ++k) tr.process(belt.frame(k));
     const Tracks t = tr.tracks();
     int n = 0, total = 0;
     for (const auto& p : t.frames.back()) {
@@ -373,6 +383,35 @@ TEST(KltTracker, DetectsNoCornerItsLucasKanadeWouldRefuse) {
   // Without the check: 111 tracks on the bare half, 116 ended at the first step; with it a few on
   // the texture's edge still do (5 of 185).
   EXPECT_LE(ended, static_cast<int>(t.frames[0].size()) / 20) << "tracks that ended at the first step";
+}
+
+TEST(PatchTracker, LostMovingPatchesAreReplacedWhileAStillBackgroundKeepsTheCount) {
+  // The KLT tracker's rule (LostMovingTracksAreReplacedWhileAStillBackgroundKeepsTheCount) in the
+  // patch tracker: before, it re-detected only when fewer than 70 % of max_patches lived, so a
+  // moving object's patches, once lost, were not replaced while a still background kept the
+  // count. The same scene: a still textured top half, a belt carrying texture to the right at
+  // 6 px per frame below it. After 25 frames: patches on the belt's entering side (started after
+  // frame 0) with the default, none with the moving trigger off.
+  const BeltScene belt;
+  auto leftBeltPatches = [&](int min_moving) {
+    vision::PatchTrackerOptions o;
+    o.min_moving = min_moving;
+    vision::PatchTracker tr(o);
+    for (int k = 0; k < BeltScene::kFrames; ++k) tr.process(belt.frame(k));
+    const PatchTracks t = tr.tracks();
+    int n = 0, total = 0;
+    for (const auto& p : t.frames.back()) {
+      ++total;
+      if (p.px.y() > 165 && p.px.x() < 150 &&
+          std::none_of(t.frames[0].begin(), t.frames[0].end(), [&](const PatchObservation& q) { return q.id == p.id; }))
+        ++n;
+    }
+    EXPECT_GE(total, static_cast<int>(0.7 * o.max_patches)) << "the still half keeps the count up";
+    std::cout << "[ note ] min_moving " << min_moving << ": " << n << " new patches on the belt's left, " << total << " live\n";
+    return n;
+  };
+  EXPECT_GE(leftBeltPatches(vision::PatchTrackerOptions{}.min_moving), 3) << "new texture on the belt is tracked";
+  EXPECT_EQ(leftBeltPatches(std::numeric_limits<int>::max()), 0) << "the count alone re-detected: the scene does not test the trigger";
 }
 
 TEST(KltTracker, AVideoThatFadesInFromBlackIsTrackedFromItsFirstCorners) {

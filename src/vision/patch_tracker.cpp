@@ -101,7 +101,15 @@ void PatchTracker::process(const cv::Mat& frame) {
       }
     }
   }
-  if (frames_.empty() || static_cast<double>(live_.size()) < o_.redetect_below * o_.max_patches) detect(gray);
+  int moving = 0;
+  for (const auto& [id, l] : live_) moving += (l.obs.px - l.obs.px0).norm() > o_.moving_px;
+  moving_peak_ = std::max(moving_peak_, moving);
+  const bool few = static_cast<double>(live_.size()) < o_.redetect_below * o_.max_patches;
+  const bool few_moving = moving_peak_ >= o_.min_moving && static_cast<double>(moving) < o_.redetect_below * moving_peak_;
+  if (frames_.empty() || few || few_moving) {
+    detect(gray);
+    moving_peak_ = moving;
+  }
   std::vector<PatchObservation> f;
   f.reserve(live_.size());
   for (const auto& [id, l] : live_) f.push_back(l.obs);  // std::map: ascending ids

@@ -7,7 +7,8 @@
 // pyramidal LK of the centre. A patch is lost (and ends) when the alignment fails (residual above
 // max_rms, area change outside [min_det, max_det], textureless, leaves the image) or lands more
 // than max_jump_px from the LK prediction. New patches are detected when fewer than
-// redetect_below * max_patches live.
+// redetect_below * max_patches live, or fewer than redetect_below of the most patches that had
+// moved since the last detection (the KLT tracker's rule, klt_tracker.hpp).
 #include <opencv2/core.hpp>
 
 #include <functional>
@@ -30,6 +31,12 @@ struct PatchTrackerOptions {
   int pyramid_levels = 3;
   double max_jump_px = 3.0;       ///< loss: alignment this far from the LK prediction (px)
   double redetect_below = 0.7;
+  /// ... or when fewer than redetect_below of the most patches that had moved (more than
+  /// moving_px from where they started) since the last detection still live, once at least
+  /// min_moving had: before a still background a moving object's lost patches are replaced
+  /// (TrackerOptions::moving_px, min_moving: the same rule and values as the KLT tracker's).
+  double moving_px = TrackerOptions{}.moving_px;
+  int min_moving = TrackerOptions{}.min_moving;
   /// The alignment: radius 15 (31 x 31 templates), Gaussian window sigma 15, bicubic sampling,
   /// 20 iterations to 0.002 px. These reach 0.03-0.04 px at the corners of a known warp of a real
   /// image (tests/test_video.cpp); radius 10 with bilinear sampling gave up to 0.19 px.
@@ -66,6 +73,7 @@ class PatchTracker {
   std::vector<std::vector<PatchObservation>> frames_;
   int next_id_ = 0;
   long lost_ = 0;
+  int moving_peak_ = 0;  // most moving patches alive since the last detection
   cv::Size size_;
 };
 
