@@ -12,6 +12,14 @@
 
 namespace rsfm::vision {
 
+// Documented in klt_tracker.hpp.
+bool redetectionDue(int live, int max_live, int moving, double below, int min_moving, int* moving_peak) {
+  *moving_peak = std::max(*moving_peak, moving);
+  const bool few = static_cast<double>(live) < below * max_live;
+  const bool few_moving = *moving_peak >= min_moving && static_cast<double>(moving) < below * *moving_peak;
+  return few || few_moving;
+}
+
 void KltTracker::detect(const cv::Mat& gray, bool first) {
   const int want = o_.max_tracks - static_cast<int>(cur_.size());
   if (want <= 0) return;
@@ -225,10 +233,7 @@ void KltTracker::process(const cv::Mat& frame) {
     vel_.swap(next_vel);
     int moving = 0;
     for (const auto& t : cur_) moving += (t.px - first_px_[static_cast<size_t>(t.id)]).norm() > o_.moving_px;
-    moving_peak_ = std::max(moving_peak_, moving);
-    const bool few = static_cast<double>(cur_.size()) < o_.redetect_below * o_.max_tracks;
-    const bool few_moving = moving_peak_ >= o_.min_moving && static_cast<double>(moving) < o_.redetect_below * moving_peak_;
-    if (few || few_moving) {
+    if (redetectionDue(static_cast<int>(cur_.size()), o_.max_tracks, moving, o_.redetect_below, o_.min_moving, &moving_peak_)) {
       detect(gray, false);
       moving_peak_ = moving;
     }

@@ -103,10 +103,9 @@ void PatchTracker::process(const cv::Mat& frame) {
   }
   int moving = 0;
   for (const auto& [id, l] : live_) moving += (l.obs.px - l.obs.px0).norm() > o_.moving_px;
-  moving_peak_ = std::max(moving_peak_, moving);
-  const bool few = static_cast<double>(live_.size()) < o_.redetect_below * o_.max_patches;
-  const bool few_moving = moving_peak_ >= o_.min_moving && static_cast<double>(moving) < o_.redetect_below * moving_peak_;
-  if (frames_.empty() || few || few_moving) {
+  const bool due =
+      redetectionDue(static_cast<int>(live_.size()), o_.max_patches, moving, o_.redetect_below, o_.min_moving, &moving_peak_);
+  if (frames_.empty() || due) {
     detect(gray);
     moving_peak_ = moving;
   }

@@ -324,9 +324,15 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
   std::vector<char> joined(ids, 0);
   const double ransac_px = tol.ransac_px, verify_px = tol.verify_px;
   // The members' points in frame k, in the members' order (nullptr: not in view): one merge of
-  // the ids sorted once with the frame's (sorted by id), not a search per member and frame.
-  std::vector<int> by_id;
-  auto pointsAt = [&](const std::vector<int>& members, int k, std::vector<const TrackPoint*>* at) {
+  // the members' ids (in the order `by_id`, idOrder's, computed once per member set) with the
+  // frame's (sorted by id), not a search per member and frame.
+  auto idOrder = [](const std::vector<int>& members) {
+    std::vector<int> order(members.size());
+    std::iota(order.begin(), order.end(), 0);
+    std::sort(order.begin(), order.end(), [&](int x, int y) { return members[static_cast<size_t>(x)] < members[static_cast<size_t>(y)]; });
+    return order;
+  };
+  auto pointsAt = [&](const std::vector<int>& members, const std::vector<int>& by_id, int k, std::vector<const TrackPoint*>* at) {
     at->assign(members.size(), nullptr);
     const std::vector<TrackPoint>& f = tracks.frames[static_cast<size_t>(k)];
     size_t j = 0;
@@ -337,11 +343,6 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
       if (f[j].id == id) (*at)[static_cast<size_t>(m)] = &f[j];
     }
   };
-  auto sortById = [&](const std::vector<int>& members) {
-    by_id.resize(members.size());
-    std::iota(by_id.begin(), by_id.end(), 0);
-    std::sort(by_id.begin(), by_id.end(), [&](int x, int y) { return members[static_cast<size_t>(x)] < members[static_cast<size_t>(y)]; });
-  };
   std::vector<const TrackPoint*> at;
   auto fitAllFrames = [&](FoundPlane* c) {
     std::vector<int> members = c->members;
@@ -351,9 +352,9 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
       c->support.assign(F, 0);
       c->support[0] = static_cast<int>(members.size());
       std::vector<char> bad(ids, 0);
-      sortById(members);
+      const std::vector<int> by_id = idOrder(members);
       for (int k = 1; k < F; ++k) {
-        pointsAt(members, k, &at);
+        pointsAt(members, by_id, k, &at);
         std::vector<cv::Point2d> a, b;
         auto collect = [&](bool with_joined) {
           a.clear();
@@ -393,10 +394,10 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
     c->members = members;
     // Largest median displacement from the reference over the frames.
     double motion = 0.0;
-    sortById(members);
+    const std::vector<int> by_id = idOrder(members);
     for (int k = 1; k < F; k += std::max(1, F / 20)) {
       std::vector<double> d;
-      pointsAt(members, k, &at);
+      pointsAt(members, by_id, k, &at);
       for (size_t m = 0; m < members.size(); ++m) {
         const int id = members[m];
         const TrackPoint* pk = at[m];

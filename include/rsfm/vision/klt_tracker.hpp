@@ -58,6 +58,12 @@ struct TrackerOptions {
   std::vector<cv::Point2f> roi;
 };
 
+/// The re-detection rule of both trackers (KltTracker; PatchTracker with its own options): due
+/// when fewer than `below` x `max_live` are alive, or fewer than `below` of the most moving ones
+/// since the last detection (`*moving_peak`, raised here to `moving`) once at least `min_moving`
+/// had. After detecting, the caller sets *moving_peak to the moving count it detected at.
+bool redetectionDue(int live, int max_live, int moving, double below, int min_moving, int* moving_peak);
+
 class KltTracker {
  public:
   explicit KltTracker(TrackerOptions o = {}) : o_(std::move(o)) {}
