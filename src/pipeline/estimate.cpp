@@ -85,6 +85,46 @@ TrackFilterOptions startOptions(const TrackFilterOptions& base, const vision::St
   return o;
 }
 
+namespace {
+
+/// OnlineAccuracy of a successful refinement (pipeline/refine.hpp).
+OnlineAccuracy onlineAccuracy(const TrackFilterResult& online, const RefineResult& refined) {
+  OnlineAccuracy a;
+  a.checked = true;
+  const TrackFrame& o = online.frames.back();
+  const TrackFrame& f = refined.state.frames.back();
+  const double s = refined.state.scale_px;
+  a.focal_determined = refined.focal_determined;
+  if (a.focal_determined) {
+    const double sd_r = s * std::sqrt(std::max(0.0, f.var_beta)) / (f.beta * f.beta);
+    a.focal_sd_px = std::hypot(online.scale_px / o.beta - s / f.beta, sd_r);
+  }
+  auto cov = [](const TrackFrame& t, std::size_t j) {
+    Eigen::Matrix4d c = Eigen::Matrix4d::Zero();
+    c(0, 0) = t.var_beta;
+    c.bottomRightCorner<3, 3>() = t.cov_N[j];
+    c.block<3, 1>(1, 0) = t.cov_beta_N[j];
+    c.block<1, 3>(0, 1) = t.cov_beta_N[j].transpose();
+    return c;
+  };
+  for (std::size_t j = 0; j < f.N.size(); ++j) {
+    const bool det = j < refined.plane_determined.size() && refined.plane_determined[j] && j < o.N.size();
+    a.plane_determined.push_back(det);
+    if (!det) {
+      a.normal_sd_deg.push_back(0.0);
+      a.distance_sd.push_back(0.0);
+      continue;
+    }
+    const MetricPlane pr = metricPlane(f.N[j], f.beta, cov(f, j)), po = metricPlane(o.N[j], o.beta);
+    const double angle = std::acos(std::clamp(pr.n.dot(po.n), -1.0, 1.0)) * 180.0 / M_PI;
+    a.normal_sd_deg.push_back(std::hypot(angle, pr.sd_angle_deg));
+    a.distance_sd.push_back(std::hypot(po.d - pr.d, pr.sd_d));
+  }
+  return a;
+}
+
+}  // namespace
+
 // Issue 14 item 3; documented in pipeline/estimate.hpp.
 void scoreStartHypotheses(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterOptions& base, int m,
                           vision::PlaneStart* start) {
@@ -456,6 +496,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
       say(fmt::format("refine: focal {:.1f} px, {} in {:.2f} s", r.refined.state.scale_px / r.refined.state.frames.back().beta,
                       r.refined.message, r.refined.seconds));
       if (!r.refined.why.empty()) say("refine: not determined: " + r.refined.why);
+      r.refined.online_accuracy = onlineAccuracy(r.online, r.refined);
     } else {
       say("warning: refinement: " + r.refined.message + "; the online estimate stands");
     }

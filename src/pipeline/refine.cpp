@@ -19,6 +19,7 @@
 #include "rsfm/determinacy.hpp"
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/models/radial_camera.hpp"
+#include "rsfm/residual_correlation.hpp"
 
 namespace rsfm {
 namespace {
@@ -247,23 +248,8 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     r.robust_sigma_px = robustSd(all);
     r.tracks = static_cast<int>(p.data.point_ids.size());
     r.observations = n_res / 2;
-    {
-      // Pooled autocorrelation of the residuals along tracks (x and y separately), lags 1..50,
-      // summed up to its first non-positive value.
-      double c0 = 0;
-      for (double x : all) c0 += x * x;
-      double sum_rho = 0;
-      for (int lag = 1; lag <= 1000 && c0 > 0; ++lag) {
-        double c = 0;
-        for (const auto& v : per)  // v = (x0, y0, x1, y1, ...)
-          for (std::size_t i = 0; i + 2 * lag + 1 < v.size(); i += 2)
-            c += v[i] * v[i + 2 * lag] + v[i + 1] * v[i + 2 * lag + 1];
-        const double rho = c / c0;
-        if (!(rho > 0)) break;
-        sum_rho += rho;
-      }
-      r.correlation_inflation = 1 + 2 * sum_rho;
-    }
+    // The residuals' correlation along tracks widens the bound (rsfm/residual_correlation.hpp).
+    r.correlation_inflation = alongTrackCorrelationInflation(per);
     sigma_final = r.sigma_px * std::sqrt(r.correlation_inflation);
     p.data.sigma_uv = sigma_final / s;
     PlaneBatchBoundOptions bopt;

@@ -1,4 +1,5 @@
 #include "rsfm/pipeline/track_filter.hpp"
+#include "rsfm/residual_correlation.hpp"
 
 #include <Eigen/Eigenvalues>
 
@@ -40,11 +41,20 @@ FilterOptions TrackFilterOptions::defaultFilter() {
 
 namespace {
 
-/// Posterior residuals of the accepted observations, accumulated per group (plane, or 0).
+/// The filter's posterior residuals along its tracks, for the calibration of its reported sds
+/// (TrackFilterResult::sd_calibration).
+struct ResidualSeries {
+  std::vector<std::vector<double>> per;  ///< by filter point index: (x, y) in px, frame by frame
+  double ss = 0.0;                       ///< sum of squares (px^2)
+  double dof = 0.0;  ///< 2 per accepted observation less each frame's 6 motion parameters
+};
+
+/// Posterior residuals of the accepted observations, accumulated per group (plane, or 0), and
+/// along each track in `series`.
 template <class Model>
 void accumulateResiduals(const RecursiveFilter<Model>& f, const std::vector<Observation>& obs, const FrameStats& fs,
                          const std::vector<int>& group_of_obs, double s, std::vector<double>* sum2,
-                         std::vector<long>* count, double* frame_rms) {
+                         std::vector<long>* count, double* frame_rms, ResidualSeries* series) {
   std::vector<Observation> acc;
   std::vector<int> grp;
   for (size_t b = 0; b < fs.used.size(); ++b) {
@@ -59,12 +69,45 @@ void accumulateResiduals(const RecursiveFilter<Model>& f, const std::vector<Obse
   f.model().linearize(f.ekf().x(), f.rotation(), acc, 1.0, nullptr, &batch, &invalid, &problem, &used);
   double fs2 = 0.0;
   for (size_t b = 0; b < used.size(); ++b) {
-    const double r2 = batch.residual.template segment<2>(2 * b).squaredNorm() * s * s;
+    const Eigen::Vector2d r = batch.residual.template segment<2>(2 * b) * s;
+    const double r2 = r.squaredNorm();
     (*sum2)[grp[used[b]]] += r2;
     (*count)[grp[used[b]]] += 2;
     fs2 += r2;
+    const auto id = static_cast<std::size_t>(acc[used[b]].id);
+    if (id >= series->per.size()) series->per.resize(id + 1);
+    series->per[id].push_back(r.x());
+    series->per[id].push_back(r.y());
   }
   *frame_rms = used.empty() ? 0.0 : std::sqrt(fs2 / (2.0 * used.size()));
+  series->ss += fs2;
+  series->dof += std::max(0.0, 2.0 * static_cast<double>(used.size()) - 6.0);
+}
+
+/// The filter's covariance assumes independent measurement errors of sd `sigma_px`. Its tracks'
+/// residuals say otherwise: scaled by the along-track correlation's inflation c
+/// (rsfm/residual_correlation.hpp, as the refinement's bound) and by (sigma_res / sigma_px)^2 when
+/// the residuals' sd sigma_res exceeds the sd assumed, every frame's covariance of beta and the
+/// planes after the reference frame. A smaller sigma_res does not narrow it: the process noise's
+/// part of the covariance does not scale with the measurement noise.
+void calibrateSds(const ResidualSeries& series, double sigma_px, TrackFilterResult* res) {
+  TrackFilterResult::SdCalibration& c = res->sd_calibration;
+  c.filter_sigma_px = sigma_px;
+  if (!(series.dof > 0) || !(sigma_px > 0)) return;
+  c.residual_sd_px = std::sqrt(series.ss / series.dof);
+  c.correlation_inflation = alongTrackCorrelationInflation(series.per);
+  c.variance_factor = c.correlation_inflation * std::max(1.0, std::pow(c.residual_sd_px / sigma_px, 2));
+  if (!std::isfinite(c.variance_factor)) {
+    c.variance_factor = 1.0;
+    return;
+  }
+  c.applied = true;
+  for (std::size_t k = static_cast<std::size_t>(res->still_frames) + 1; k < res->frames.size(); ++k) {
+    TrackFrame& tf = res->frames[k];
+    tf.var_beta *= c.variance_factor;
+    for (auto& C : tf.cov_N) C *= c.variance_factor;
+    for (auto& C : tf.cov_beta_N) C *= c.variance_factor;
+  }
 }
 
 std::string stopReason(int frame, const FrameStats& fs, int min_points) {
@@ -374,6 +417,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     res.transfer_failed = {0};
     std::vector<double> sum2(1, 0.0);
     std::vector<long> cnt(1, 0);
+    ResidualSeries series;
     TrackFrame t0;
     t0.frame = tracks.frameNumber(0);
     t0.beta = beta0;
@@ -392,11 +436,12 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       res.stopped = afterStep(f, fs, tracks.frameNumber(k));
       if (!res.stopped.empty()) break;
       TrackFrame tf = frameOf(f, fs, tracks.frameNumber(k), static_cast<int>(obs.size()), depth_start);
-      accumulateResiduals(f, obs, fs, std::vector<int>(obs.size(), 0), s, &sum2, &cnt, &tf.rms_px);
+      accumulateResiduals(f, obs, fs, std::vector<int>(obs.size(), 0), s, &sum2, &cnt, &tf.rms_px, &series);
       res.frames.push_back(tf);
       if (progress) progress(k + 1, F);
     }
     res.plane_rms_px = {cnt[0] ? std::sqrt(sum2[0] / cnt[0]) : 0.0};
+    calibrateSds(series, o.sigma_px, &res);
     return res;
   }
 
@@ -461,6 +506,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       N_start[0].z() = nz0;
     }
   }
+  ResidualSeries series;
   for (int pass = 1; pass <= o.passes; ++pass) {
     res.frames.clear();
     res.stopped.clear();
@@ -501,6 +547,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     res.transfer_failed.assign(m_all, 0);
     std::vector<double> sum2(m_all, 0.0);
     std::vector<long> cnt(m_all, 0);
+    series = ResidualSeries{};  // the last pass's residuals calibrate the sds
     auto recordPlane = [&](TrackFrame* tf, int j) {
       const int b = PlaneModel::planeIndex(j);
       tf->N.push_back(f.ekf().x().segment<3>(b));
@@ -545,7 +592,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       if (!res.stopped.empty()) break;
       TrackFrame tf = frameOf(f, fs, tracks.frameNumber(k), static_cast<int>(obs.size()), depth_start);
       recordPlanes(&tf);
-      accumulateResiduals(f, obs, fs, grp, s, &sum2, &cnt, &tf.rms_px);
+      accumulateResiduals(f, obs, fs, grp, s, &sum2, &cnt, &tf.rms_px, &series);
       res.frames.push_back(tf);
       // Planes that join mid-run (TrackFilterOptions::late_planes; docs/estimate.md section 3).
       for (size_t i = 0; i < o.late_planes.size(); ++i) {
@@ -646,6 +693,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     beta_start = known_focal ? beta0 : fin.beta;
     N_start.assign(fin.N.begin(), fin.N.begin() + m);  // the late planes join again where they did
   }
+  calibrateSds(series, o.sigma_px, &res);
   return res;
 }
 

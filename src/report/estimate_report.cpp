@@ -97,6 +97,35 @@ nlohmann::json finalEstimates(const TrackFilterResult& res) {
           {"plane_reprojection_rms_px", res.plane_rms_px}};
 }
 
+/// summary.json's "online" section: the filter's final figures, with the sds of their errors
+/// against the refinement when it ran (OnlineAccuracy; `sd_basis` "refinement") instead of the
+/// filter's own ("filter": its covariance calibrated by its residuals).
+nlohmann::json onlineEstimates(const TrackFilterResult& res, const OnlineAccuracy& a,
+                               const std::optional<std::array<double, 2>>& focal_interval_px) {
+  nlohmann::json j = finalEstimates(res);
+  j["sd_basis"] = a.checked ? "refinement" : "filter";
+  if (!a.checked) return j;
+  j["filter_focal_sd_px"] = j["focal_sd_px"];  // the filter's own (calibrated) sds, kept beside
+  j["filter_plane_normal_sd_deg"] = j["plane_normal_sd_deg"];
+  j["focal_determined"] = a.focal_determined;
+  if (a.focal_determined) {
+    j["focal_sd_px"] = a.focal_sd_px;
+  } else {
+    j["focal_sd_px"] = nullptr;
+    j["focal_interval_px"] = focal_interval_px ? io::focalIntervalJson((*focal_interval_px)[0], (*focal_interval_px)[1])
+                                               : nlohmann::json{nullptr, nullptr};
+  }
+  nlohmann::json nsd = nlohmann::json::array(), dsd = nlohmann::json::array();
+  for (std::size_t p = 0; p < a.plane_determined.size(); ++p) {
+    nsd.push_back(a.plane_determined[p] ? nlohmann::json(a.normal_sd_deg[p]) : nlohmann::json(nullptr));
+    dsd.push_back(a.plane_determined[p] ? nlohmann::json(a.distance_sd[p]) : nlohmann::json(nullptr));
+  }
+  j["plane_determined"] = a.plane_determined;
+  j["plane_normal_sd_deg"] = nsd;
+  j["plane_distance_sd"] = dsd;
+  return j;
+}
+
 }  // namespace
 
 std::vector<TumPose> trajectoryPoses(const TrackFilterResult& res, const ImageInfo& image) {
@@ -192,6 +221,16 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
     pn["translation_sd_rel"] = range(t);
     j["process_noise"] = pn;
   }
+  // The online filter's reported sds: its covariance widened by its residuals' along-track
+  // correlation and spread (TrackFilterResult::SdCalibration).
+  {
+    const TrackFilterResult::SdCalibration& c = r.result->sd_calibration;
+    j["filter_sd_calibration"] = {{"applied", c.applied},
+                                  {"filter_sigma_px", c.filter_sigma_px},
+                                  {"residual_sd_px", c.residual_sd_px},
+                                  {"correlation_inflation", c.correlation_inflation},
+                                  {"variance_factor", c.variance_factor}};
+  }
   // The tracks on the planes ran out before the input's last frame (TrackFilterResult::ended).
   j["ended_early"] = r.result->ended.empty() ? nlohmann::json(nullptr) : nlohmann::json(r.result->ended);
   // Final focal length and normals of every pass (--passes): their spread is an honest measure
@@ -276,7 +315,7 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                          {"initial_rms_px", rf.initial_rms_px},
                          {"final_rms_px", rf.final_rms_px},
                          {"seconds", rf.seconds}};
-      j["online"] = finalEstimates(*r.result);
+      j["online"] = onlineEstimates(*r.result, rf.online_accuracy, rf.focal_interval_px);
     } else if (r.refined) {
       j["refinement"] = {{"ok", false}, {"message", r.refined->message}};
     }

@@ -77,9 +77,26 @@ struct RefineOptions {
   int spatial_grid = 3;
 };
 
+/// The online estimate's final figures against the refinement's (docs/estimate.md section 3,
+/// "The reported sds"). Given the data, the refined estimate x_r has error ~ (0, sd_r^2) and
+/// the online estimate x_o = x_r + (x_o - x_r): its error has RMS sqrt((x_o - x_r)^2 +
+/// sd_r^2), whatever the filter's own covariance says (an EKF linearized at its early
+/// estimates can stop many of its sds away from the truth). A quantity the refinement reports
+/// not determined is not determined online either. `checked` false: no refinement (the
+/// filter's own, residual-calibrated sds stand, TrackFilterResult::SdCalibration).
+struct OnlineAccuracy {
+  bool checked = false;
+  bool focal_determined = true;
+  double focal_sd_px = 0.0;             ///< sqrt((f_o - f_r)^2 + sd_r^2); 0 with the focal length known
+  std::vector<bool> plane_determined;   ///< per plane
+  std::vector<double> normal_sd_deg;    ///< sqrt(angle(n_o, n_r)^2 + sd_r^2), the sds as metricPlane's
+  std::vector<double> distance_sd;      ///< sqrt((d_o - d_r)^2 + sd_r^2), trajectory units
+};
+
 struct RefineResult {
   bool ok = false;           ///< a refined estimate exists (else the online estimate stands; message says why)
   std::string message;
+  OnlineAccuracy online_accuracy;  ///< the online estimate's final figures against this one (set by estimate())
   /// The refined sequence in the filter's form: one TrackFrame per frame with the refined R, t,
   /// beta and N (the same in every frame), their covariances from the bound, the frame's
   /// observations in `used` and its residual RMS in `rms_px`.

@@ -186,6 +186,18 @@ struct TrackFilterResult {
   /// TrackFilterOptions' start motion the noise started from (0: none).
   double start_rotation_deg_per_frame = 0.0, start_translation_rel_per_frame = 0.0;
   bool q_from_data = false, q_adapted = false;
+  /// The reported covariances (var_beta, cov_N, cov_beta_N of every frame after the reference
+  /// frame) are the filter's own times `variance_factor`: its covariance assumes independent
+  /// measurement errors of sd `filter_sigma_px` (px), while its posterior residuals along the
+  /// tracks (last pass) have sd `residual_sd_px` (2 per accepted observation less each frame's 6
+  /// motion parameters as degrees of freedom) and are correlated from frame to frame:
+  /// variance_factor = correlation_inflation * max(1, (residual_sd_px / filter_sigma_px)^2),
+  /// correlation_inflation = 1 + 2 sum rho (rsfm/residual_correlation.hpp). Not applied (factor
+  /// 1) without residuals. docs/estimate.md section 3, "The reported sds".
+  struct SdCalibration {
+    bool applied = false;
+    double filter_sigma_px = 0.0, residual_sd_px = 0.0, correlation_inflation = 1.0, variance_factor = 1.0;
+  } sd_calibration;
   bool ok() const { return stopped.empty(); }
 };
 

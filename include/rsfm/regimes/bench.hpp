@@ -59,6 +59,11 @@ struct Row {
   std::optional<bool> online_focal_in_95;
   std::optional<double> online_worst_normal_err_deg;
   int online_normals_in_95 = 0;
+  /// The same with the online section's sds as reported: against the refinement when it ran
+  /// (OnlineAccuracy, docs/estimate.md section 3) - the filter alone's above use the filter's
+  /// own calibrated sds (summary.json online.filter_*).
+  std::optional<bool> online_reported_focal_in_95;
+  int online_reported_normals_in_95 = 0;
   std::optional<double> face_angle_err_deg;  ///< worst |angle between two estimated planes - true angle|
   std::optional<double> face_angle_deg;   ///< real rows: the angle between the two planes with the most tracks
   std::optional<double> ate_pct;          ///< ATE RMSE, % of the scene size (or of the trajectory's extent)
