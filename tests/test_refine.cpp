@@ -285,6 +285,32 @@ TEST(FilterSds, TheOnlineFiguresAgainstTheRefinementHoldTheTruth) {
   EXPECT_GE(c.normals_inside, c.normals * 9 / 10);
 }
 
+TEST(FilterSds, WithoutARefinementTheFilterSaysWhatItsSdsDoNotDetermine) {
+  // No refinement: the refinement's limits on the filter's calibrated sds (FilterDeterminacy).
+  // A camera that only translates determines neither the focal length nor (with it) the tilts;
+  // the orbit determines both.
+  for (const char* name : {"box-translate", "box-orbit"}) {
+    const render::Regime* rg = render::builtinRegimeSuite().find(name);
+    ASSERT_NE(rg, nullptr) << name;
+    const RegimeTracks s = regimeTracks(rg->options, 0.2, 5);
+    EstimateOptions o;
+    o.refine.enabled = false;
+    const EstimateResult r = estimate(s.tracks, o);
+    ASSERT_TRUE(r.online.ok()) << name << ": " << r.online.stopped;
+    const FilterDeterminacy d = filterDeterminacy(r.online, false);
+    const TrackFrame& last = r.online.frames.back();
+    const double f = r.online.scale_px / last.beta, sd = r.online.scale_px * std::sqrt(last.var_beta) / (last.beta * last.beta);
+    std::printf("%s: filter focal %.1f +- %.1f px (truth %.1f), rotation Wald %.1f: %s\n", name, f, sd, *s.truth.focal_px, d.wald_rotation_chi2,
+                d.why.empty() ? "determined" : d.why.c_str());
+    const bool translates_only = std::string(name) == "box-translate";
+    EXPECT_EQ(d.focal_determined, !translates_only) << name;
+    ASSERT_FALSE(d.plane_determined.empty());
+    for (bool b : d.plane_determined) EXPECT_EQ(b, !translates_only) << name;
+    EXPECT_EQ(d.why.empty(), !translates_only);
+    EXPECT_TRUE(filterDeterminacy(r.online, true).focal_determined);  // a given focal length is known
+  }
+}
+
 TEST(FilterSds, TheCorrelationInflationOfAnAr1SeriesIsItsIntegratedAutocorrelationTime) {
   // AR(1) with rho: sum over all lags of rho^|lag| = (1 + rho) / (1 - rho).
   for (const double rho : {0.0, 0.5, 0.9}) {

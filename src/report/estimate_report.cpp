@@ -320,6 +320,32 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
       j["refinement"] = {{"ok", false}, {"message", r.refined->message}};
     }
   }
+  j["determined_by"] = refined ? "refinement" : "filter";
+  if (!refined) {
+    // No refinement: the filter alone's verdict from its calibrated sds (FilterDeterminacy,
+    // pipeline/track_filter.hpp; the refinement's limits).
+    const FilterDeterminacy d = filterDeterminacy(res, r.focal_given);
+    j["focal_determined"] = d.focal_determined;
+    if (!d.focal_determined) {
+      j["focal_estimate_px"] = j["focal_px"];  // the filter's value, for inspection only
+      j["focal_px"] = nullptr;
+      j["focal_sd_px"] = nullptr;
+      // No focal_interval_px: without the refinement's profile no interval is known to be
+      // supported (not_determined_why gives the filter's linear one).
+    }
+    if (r.model != TrackModel::Point) {
+      j["plane_determined"] = d.plane_determined;
+      for (std::size_t i = 0; i < d.plane_determined.size() && i < j["plane_normal_sd_deg"].size(); ++i)
+        if (!d.plane_determined[i]) j["plane_normal_sd_deg"][i] = j["plane_distance_sd"][i] = nullptr;
+      for (auto& a : j["angles_between_planes_deg"]) {
+        const auto pa = a["planes"][0].get<std::size_t>(), pb = a["planes"][1].get<std::size_t>();
+        a["determined"] = pa < d.plane_determined.size() && pb < d.plane_determined.size() && d.plane_determined[pa] &&
+                          d.plane_determined[pb];
+      }
+      j["structure_determined"] = std::all_of(d.plane_determined.begin(), d.plane_determined.end(), [](bool b) { return b; });
+    }
+    j["not_determined_why"] = d.why;
+  }
   if (r.focal_given) j["focal_given"] = true;
   if (r.given_camera) {
     // The tracks were undistorted onto the given pinhole: the camera is the given one, not an
