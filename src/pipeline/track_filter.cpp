@@ -1,4 +1,6 @@
 #include "rsfm/pipeline/track_filter.hpp"
+#include "rsfm/camera.hpp"
+#include "rsfm/rotation.hpp"
 #include "rsfm/chi2.hpp"
 #include "rsfm/determinacy.hpp"
 #include "rsfm/residual_correlation.hpp"
@@ -110,7 +112,7 @@ void calibrateSds(const ResidualSeries& series, double sigma_px, TrackFilterResu
   for (std::size_t k = static_cast<std::size_t>(res->still_frames) + 1; k < res->frames.size(); ++k) {
     TrackFrame& tf = res->frames[k];
     tf.var_beta *= c.variance_factor;
-    tf.cov_omega *= c.variance_factor;
+    tf.cov_motion *= c.variance_factor;
     for (auto& C : tf.cov_N) C *= c.variance_factor;
     for (auto& C : tf.cov_beta_N) C *= c.variance_factor;
   }
@@ -186,7 +188,7 @@ TrackFrame frameOf(const RecursiveFilter<Model>& f, const FrameStats& fs, int fr
   tf.t = f.translation();
   tf.beta = f.beta();
   tf.var_beta = f.ekf().P()(idx::kBeta, idx::kBeta);
-  tf.cov_omega = f.ekf().P().template block<3, 3>(idx::kWx, idx::kWx);
+  tf.cov_motion = f.ekf().P().template topLeftCorner<6, 6>();
   tf.observed = observed;
   tf.used = fs.update.used;
   tf.gated = fs.update.gated;
@@ -719,16 +721,41 @@ FilterDeterminacy filterDeterminacy(const TrackFilterResult& result, bool known_
   const double quantile = chi2Quantile(1.0 - 0.001 / std::max(1, moving), 3.0);
   for (std::size_t k = static_cast<std::size_t>(result.still_frames) + 1; k < result.frames.size(); ++k) {
     const TrackFrame& fk = result.frames[k];
+    if (fk.still || fk.cov_motion.isZero(0.0) || !(fk.beta > 0)) continue;
     const Eigen::AngleAxisd aa(fk.R);
     const Eigen::Vector3d rv = aa.angle() * aa.axis();
-    const Eigen::LDLT<Eigen::Matrix3d> l(fk.cov_omega);
-    if (l.info() == Eigen::Success && l.vectorD().minCoeff() > 0) d.wald_rotation_chi2 = std::max(d.wald_rotation_chi2, rv.dot(l.solve(rv)));
+    const Eigen::LDLT<Eigen::Matrix3d> lr(fk.cov_motion.bottomRightCorner<3, 3>());
+    if (lr.info() == Eigen::Success && lr.vectorD().minCoeff() > 0)
+      d.wald_rotation_chi2 = std::max(d.wald_rotation_chi2, rv.dot(lr.solve(rv)));
+    // The centre of projection (reference frame) as a function of the motion state (t_X, t_Y,
+    // t_Z beta, omega), its Jacobian by central differences (as the refinement's).
+    auto centre = [&](const Eigen::Matrix<double, 6, 1>& dx) {
+      const Eigen::Matrix3d R = incrementalRotation(dx.tail<3>()) * fk.R;
+      return copCentredPose(R, Eigen::Vector3d(fk.t.x() + dx[0], fk.t.y() + dx[1], fk.t.z() + dx[2] / fk.beta), fk.beta).position;
+    };
+    Eigen::Matrix<double, 3, 6> J;
+    for (int c = 0; c < 6; ++c) {
+      Eigen::Matrix<double, 6, 1> dx = Eigen::Matrix<double, 6, 1>::Zero();
+      const double h = 1e-7 * std::max(1.0, c < 3 ? std::abs(c == 2 ? fk.t.z() * fk.beta : fk.t[c]) : 1.0);
+      dx[c] = h;
+      const Eigen::Vector3d a = centre(dx);
+      dx[c] = -h;
+      J.col(c) = (a - centre(dx)) / (2 * h);
+    }
+    const Eigen::Vector3d ck = centre(Eigen::Matrix<double, 6, 1>::Zero());
+    const Eigen::LDLT<Eigen::Matrix3d> lt(J * fk.cov_motion * J.transpose());
+    if (lt.info() == Eigen::Success && lt.vectorD().minCoeff() > 0)
+      d.wald_translation_chi2 = std::max(d.wald_translation_chi2, ck.dot(lt.solve(ck)));
   }
   d.rotates = known_focal || d.wald_rotation_chi2 > quantile;
+  d.translates = d.wald_translation_chi2 > quantile;
   if (!d.rotates)
     why.push_back(fmt::format("the camera does not turn significantly (largest frame rotation Wald chi2 {:.1f}, limit {:.1f}): "
                               "the focal length and the planes' tilts are one null direction",
                               d.wald_rotation_chi2, quantile));
+  if (!d.translates)
+    why.push_back(fmt::format("the camera only turns (largest frame translation Wald chi2 {:.1f}, limit {:.1f}): no structure",
+                              d.wald_translation_chi2, quantile));
   d.focal_determined = known_focal || (d.rotates && f.beta > 0 && focal_sd <= kDeterminedFocalRelSd * focal);
   if (!d.focal_determined && d.rotates) {
     // Its linear interval f +- 1.96 sd is where the filter stopped, not what the data support
@@ -748,8 +775,8 @@ FilterDeterminacy filterDeterminacy(const TrackFilterResult& result, bool known_
     // A plane's tilt follows the focal length: with the focal length not determined, a normal's
     // sd at the filter's one linearization point says nothing (the refinement adds the normal's
     // turn over the supported focal lengths; the filter has no such profile).
-    d.plane_determined.push_back(d.focal_determined && sd <= kDeterminedNormalSdDeg);
-    if (!d.plane_determined.back())
+    d.plane_determined.push_back(d.translates && d.focal_determined && sd <= kDeterminedNormalSdDeg);
+    if (!d.plane_determined.back() && d.translates)
       why.push_back(d.focal_determined ? fmt::format("plane {} normal sd {:.1f} deg (limit {:.0f} deg; the filter's own sd, no "
                                                      "refinement)",
                                                      j, sd, kDeterminedNormalSdDeg)

@@ -124,9 +124,10 @@ struct TrackFrame {
   Eigen::Matrix3d R = Eigen::Matrix3d::Identity();  ///< reference -> camera k (A&P)
   Eigen::Vector3d t = Eigen::Vector3d::Zero();      ///< (t_X, t_Y, t_Z), scene units (A&P)
   double beta = 0.0, var_beta = 0.0;
-  /// The filter's covariance of its rotation error omega (rad^2, A&P eq. 2's incremental
-  /// rotation about R): the uncertainty of R. Zero in the reference frame and in refined records.
-  Eigen::Matrix3d cov_omega = Eigen::Matrix3d::Zero();
+  /// The filter's covariance of its motion state (t_X, t_Y, t_Z beta, omega): omega is the
+  /// rotation error about R (rad), so the bottom-right block is the uncertainty of R. Zero in the
+  /// reference frame and in refined records.
+  Eigen::Matrix<double, 6, 6> cov_motion = Eigen::Matrix<double, 6, 6>::Zero();
   std::vector<Eigen::Vector3d> N;                  ///< plane models: N per plane (reference frame)
   std::vector<Eigen::Matrix3d> cov_N;
   std::vector<Eigen::Vector3d> cov_beta_N;  ///< cov(beta, N) per plane
@@ -228,12 +229,15 @@ MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matr
 /// The filter alone's verdict on what its data determine, for a run without a refinement
 /// (`--refine none`, the point model, a refinement that failed): the refinement's limits
 /// (rsfm/determinacy.hpp: focal sd <= 5 % of itself, a normal's sd <= 5 deg) applied to the last
-/// frame's calibrated covariance (TrackFilterResult::SdCalibration), and the refinement's test
-/// for a rotation: without one (a camera that only translates) the focal length and the planes'
-/// tilts are one null direction, whatever the sds say (an EKF settles somewhere along it with a
-/// small covariance). The rotation is significant when some frame's rotation vector r from the
-/// reference has r^T cov_omega^-1 r above chi2(3) at 0.1 % / (frames - 1) (Bonferroni, as the
-/// refinement's Wald test). The sds leave out the filter's linearization error otherwise
+/// frame's calibrated covariance (TrackFilterResult::SdCalibration), and the refinement's tests
+/// for a rotation and a translation: without a rotation (a camera that only translates) the
+/// focal length and the planes' tilts are one null direction, and without a translation (a
+/// camera turning about its centre) the planes show no structure, whatever the sds say (an EKF
+/// settles somewhere along the null direction with a small covariance). Each is significant when
+/// some frame's rotation vector r from the reference, or centre of projection c, has
+/// r^T C_r^-1 r (c^T C_c^-1 c, C_c through the centre's Jacobian) above chi2(3) at
+/// 0.1 % / (frames - 1) (Bonferroni, the refinement's Wald tests; TrackFrame::cov_motion). The
+/// sds leave out the filter's linearization error otherwise
 /// (docs/estimate.md section 3, "The reported sds"), so this verdict can call determined what the
 /// refinement would not.
 struct FilterDeterminacy {
@@ -241,8 +245,10 @@ struct FilterDeterminacy {
   /// Per plane of the last frame; a plane is not determined with the focal length (its tilt
   /// follows it).
   std::vector<bool> plane_determined;
-  double wald_rotation_chi2 = 0.0;     ///< the largest frame's r^T cov_omega^-1 r
-  bool rotates = true;                 ///< it exceeds the quantile (true with the focal length known)
+  double wald_rotation_chi2 = 0.0;     ///< the largest frame's r^T C_r^-1 r
+  double wald_translation_chi2 = 0.0;  ///< the largest frame's c^T C_c^-1 c
+  bool rotates = true;                 ///< the rotation's exceeds the quantile (true with the focal length known)
+  bool translates = true;              ///< the translation's exceeds the quantile
   std::string why;                     ///< what is not determined and why ("" when everything is)
 };
 /// `known_focal`: the focal length was given and held (always determined).
