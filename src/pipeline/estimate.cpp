@@ -99,14 +99,6 @@ OnlineAccuracy onlineAccuracy(const TrackFilterResult& online, const RefineResul
     const double sd_r = s * std::sqrt(std::max(0.0, f.var_beta)) / (f.beta * f.beta);
     a.focal_sd_px = std::hypot(online.scale_px / o.beta - s / f.beta, sd_r);
   }
-  auto cov = [](const TrackFrame& t, std::size_t j) {
-    Eigen::Matrix4d c = Eigen::Matrix4d::Zero();
-    c(0, 0) = t.var_beta;
-    c.bottomRightCorner<3, 3>() = t.cov_N[j];
-    c.block<3, 1>(1, 0) = t.cov_beta_N[j];
-    c.block<1, 3>(0, 1) = t.cov_beta_N[j].transpose();
-    return c;
-  };
   for (std::size_t j = 0; j < f.N.size(); ++j) {
     const bool det = j < refined.plane_determined.size() && refined.plane_determined[j] && j < o.N.size();
     a.plane_determined.push_back(det);
@@ -115,7 +107,7 @@ OnlineAccuracy onlineAccuracy(const TrackFilterResult& online, const RefineResul
       a.distance_sd.push_back(0.0);
       continue;
     }
-    const MetricPlane pr = metricPlane(f.N[j], f.beta, cov(f, j)), po = metricPlane(o.N[j], o.beta);
+    const MetricPlane pr = metricPlane(f.N[j], f.beta, covBetaN(f, static_cast<int>(j))), po = metricPlane(o.N[j], o.beta);
     const double angle = std::acos(std::clamp(pr.n.dot(po.n), -1.0, 1.0)) * 180.0 / M_PI;
     a.normal_sd_deg.push_back(std::hypot(angle, pr.sd_angle_deg));
     a.distance_sd.push_back(std::hypot(po.d - pr.d, pr.sd_d));

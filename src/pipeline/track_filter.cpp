@@ -766,12 +766,7 @@ FilterDeterminacy filterDeterminacy(const TrackFilterResult& result, bool known_
                               100 * focal_sd / focal, 100 * kDeterminedFocalRelSd, lo, hi));
   }
   for (std::size_t j = 0; j < f.N.size() && j < f.cov_N.size(); ++j) {
-    Eigen::Matrix4d c = Eigen::Matrix4d::Zero();
-    c(0, 0) = f.var_beta;
-    c.bottomRightCorner<3, 3>() = f.cov_N[j];
-    c.block<3, 1>(1, 0) = f.cov_beta_N[j];
-    c.block<1, 3>(0, 1) = f.cov_beta_N[j].transpose();
-    const double sd = metricPlane(f.N[j], f.beta, c).sd_angle_deg;
+    const double sd = metricPlane(f.N[j], f.beta, covBetaN(f, static_cast<int>(j))).sd_angle_deg;
     // A plane's tilt follows the focal length: with the focal length not determined, a normal's
     // sd at the filter's one linearization point says nothing (the refinement adds the normal's
     // turn over the supported focal lengths; the filter has no such profile).
@@ -784,6 +779,17 @@ FilterDeterminacy filterDeterminacy(const TrackFilterResult& result, bool known_
   }
   for (std::size_t i = 0; i < why.size(); ++i) d.why += (i ? "; " : "") + why[i];
   return d;
+}
+
+Eigen::Matrix4d covBetaN(const TrackFrame& f, int j) {
+  Eigen::Matrix4d c = Eigen::Matrix4d::Zero();
+  c(0, 0) = f.var_beta;
+  if (j >= 0 && j < static_cast<int>(f.cov_N.size())) {
+    c.bottomRightCorner<3, 3>() = f.cov_N[static_cast<std::size_t>(j)];
+    c.block<1, 3>(0, 1) = f.cov_beta_N[static_cast<std::size_t>(j)].transpose();
+    c.block<3, 1>(1, 0) = f.cov_beta_N[static_cast<std::size_t>(j)];
+  }
+  return c;
 }
 
 MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matrix4d& cov) {

@@ -27,17 +27,6 @@ void poseOf(const TrackFrame& f, Eigen::Vector3d* position, Eigen::Quaterniond* 
 
 namespace {
 
-Eigen::Matrix4d covBetaN(const TrackFrame& f, int j) {
-  Eigen::Matrix4d c = Eigen::Matrix4d::Zero();
-  c(0, 0) = f.var_beta;
-  if (j < static_cast<int>(f.cov_N.size())) {
-    c.bottomRightCorner<3, 3>() = f.cov_N[j];
-    c.block<1, 3>(0, 1) = f.cov_beta_N[j].transpose();
-    c.block<3, 1>(1, 0) = f.cov_beta_N[j];
-  }
-  return c;
-}
-
 std::string num(double v, int prec = 6) { return formatNumber(v, prec); }
 
 }  // namespace

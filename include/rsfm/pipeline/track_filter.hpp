@@ -225,6 +225,9 @@ struct MetricPlane {
 };
 /// `cov` is the 4x4 covariance of (beta, N_X, N_Y, N_Z) (zero: no uncertainty).
 MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matrix4d& cov = Eigen::Matrix4d::Zero());
+/// The 4x4 covariance of (beta, N_X, N_Y, N_Z) of plane j in a frame's record (zero blocks for a
+/// plane the record does not hold): metricPlane's `cov`.
+Eigen::Matrix4d covBetaN(const TrackFrame& f, int j);
 
 /// The filter alone's verdict on what its data determine, for a run without a refinement
 /// (`--refine none`, the point model, a refinement that failed): the refinement's limits
