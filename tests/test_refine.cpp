@@ -318,6 +318,57 @@ TEST(FilterSds, WithoutARefinementTheFilterSaysWhatItsSdsDoNotDetermine) {
   }
 }
 
+TEST(PointModel, IsRefinedOverThePlanesThroughItsPointsAndItsOnlineSdsHoldTheTruth) {
+  // The point filter (A&P, 7 + N) starts every depth at the gauge and has no homography start:
+  // on the box orbit's geometry (100 frames, 8 x 8 tracks a face, AR(1) errors) it ends several
+  // times the truth with a calibrated sd that does not hold it (box-orbit's KLT tracks: 608.6 +-
+  // 17.1 px against 520). Its tracks
+  // are on the finder's planes, so the refinement starts from its motions and from the planes
+  // through its points: the result must be the plane model's refinement of the same tracks, and
+  // the point filter's own figure, now in the online section, must carry an sd that holds the truth.
+  const render::Regime* rg = render::builtinRegimeSuite().find("box-orbit");
+  ASSERT_NE(rg, nullptr);
+  int own_inside = 0, online_inside = 0, trials = 0;
+  render::RenderOptions ro = rg->options;
+  ro.frames = 100;
+  for (unsigned seed : {61u, 62u, 63u}) {
+    const RegimeTracks s = regimeTracks(ro, 0.3, seed, 0.9, 8);
+    const double truth = *s.truth.focal_px;
+    EstimateOptions o;
+    o.filter.model = TrackModel::Point;
+    const EstimateResult point = estimate(s.tracks, o);
+    const EstimateResult planes = estimate(s.tracks, EstimateOptions{});
+    ASSERT_TRUE(point.online.ok()) << point.online.stopped;
+    ASSERT_TRUE(point.refined.ok) << point.refined.message;
+    ASSERT_TRUE(planes.refined.ok) << planes.refined.message;
+    ASSERT_EQ(point.main().planes, planes.main().planes);
+    const auto focal = [](const TrackFilterResult& r) { return r.scale_px / r.frames.back().beta; };
+    const auto focal_sd = [](const TrackFilterResult& r) {
+      const TrackFrame& l = r.frames.back();
+      return r.scale_px * std::sqrt(l.var_beta) / (l.beta * l.beta);
+    };
+    const double f_point = focal(point.online), f_refined = focal(point.main()), f_planes = focal(planes.main());
+    const OnlineAccuracy& a = point.refined.online_accuracy;
+    ASSERT_TRUE(a.checked && a.focal_determined);
+    std::printf("seed %u: point filter %.1f +- %.1f px (own, calibrated), +- %.1f px (against the refinement); refined %.2f +- "
+                "%.2f px; planes model refined %.2f px; truth %.1f\n",
+                seed, f_point, focal_sd(point.online), a.focal_sd_px, f_refined, focal_sd(point.main()), f_planes, truth);
+    // The same problem from another start: the optima agree to a fraction of their sd (the Huber
+    // loss's scale and the outlier relabelling follow the start's residuals; measured 0.06-0.34 px).
+    EXPECT_NEAR(f_refined, f_planes, 0.25 * focal_sd(point.main()));
+    EXPECT_NEAR(f_refined, truth, 0.01 * truth);
+    EXPECT_TRUE(point.refined.plane_determined.size() == static_cast<std::size_t>(planes.main().planes));
+    EXPECT_TRUE(a.plane_determined.empty());  // the point filter has no planes of its own
+    ++trials;
+    own_inside += std::abs(f_point - truth) <= 1.96 * focal_sd(point.online);
+    online_inside += std::abs(f_point - truth) <= 1.96 * a.focal_sd_px;
+  }
+  std::printf("point filter's focal length inside its 95 %% interval: %d of %d with its own sd, %d against the refinement\n",
+              own_inside, trials, online_inside);
+  EXPECT_EQ(online_inside, trials);
+  EXPECT_LT(own_inside, trials);  // the case needs the check
+}
+
 TEST(FilterSds, TheCorrelationInflationOfAnAr1SeriesIsItsIntegratedAutocorrelationTime) {
   // AR(1) with rho: sum over all lags of rho^|lag| = (1 + rho) / (1 - rho).
   for (const double rho : {0.0, 0.5, 0.9}) {

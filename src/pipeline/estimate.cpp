@@ -4,6 +4,7 @@
 #include "rsfm/models/plane_model.hpp"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
 #include <cmath>
@@ -99,6 +100,7 @@ OnlineAccuracy onlineAccuracy(const TrackFilterResult& online, const RefineResul
     const double sd_r = s * std::sqrt(std::max(0.0, f.var_beta)) / (f.beta * f.beta);
     a.focal_sd_px = std::hypot(online.scale_px / o.beta - s / f.beta, sd_r);
   }
+  if (o.N.empty()) return a;  // the point model: no planes online
   for (std::size_t j = 0; j < f.N.size(); ++j) {
     const bool det = j < refined.plane_determined.size() && refined.plane_determined[j] && j < o.N.size();
     a.plane_determined.push_back(det);
@@ -472,7 +474,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   }
   stageDone(&r.seconds.filter);
   if (!r.online.ended.empty()) say("warning: " + r.online.ended);
-  if (o.refine.enabled && r.online.ok() && fopt.model != TrackModel::Point) {
+  if (o.refine.enabled && r.online.ok()) {
     // The refinement covers the frames the filter estimated.
     Tracks covered;
     const Tracks* rt = &tracks;
@@ -482,7 +484,37 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
       if (!covered.frame_numbers.empty()) covered.frame_numbers.resize(r.online.frames.size());
       rt = &covered;
     }
-    r.refined = refine(*rt, pf.labels, r.online, fopt, known.refine);
+    // The point model has no planes in its state, but its tracks are on the finder's planes: the
+    // refinement (the plane model's bundle adjustment, docs/estimate.md section 4) starts from its
+    // motions and beta and from the planes through its points (TrackFilterResult::point_planes).
+    // A plane with fewer than 5 of its points cannot be started and is left out of the
+    // refinement (its tracks unrefined); the others keep their order, renumbered from 0.
+    const TrackFilterResult* from = &r.online;
+    std::vector<int> refine_labels = pf.labels;
+    TrackFilterResult point_start;
+    if (fopt.model == TrackModel::Point) {
+      std::vector<int> index(r.online.point_planes.size(), -1);
+      std::vector<Eigen::Vector3d> N;
+      std::vector<int> left_out;
+      for (std::size_t j = 0; j < index.size(); ++j) {
+        if (!r.online.point_planes[j]) {
+          left_out.push_back(static_cast<int>(j));
+          continue;
+        }
+        index[j] = static_cast<int>(N.size());
+        N.push_back(*r.online.point_planes[j]);
+      }
+      for (int& l : refine_labels) l = l >= 0 && l < static_cast<int>(index.size()) ? index[static_cast<std::size_t>(l)] : -1;
+      point_start = r.online;
+      point_start.planes = static_cast<int>(N.size());
+      for (TrackFrame& f : point_start.frames) f.N = N;
+      from = &point_start;
+      if (!left_out.empty())
+        say(fmt::format("refine: plane(s) {} have fewer than 5 of the point model's points: left out of the refinement",
+                        fmt::join(left_out, ", ")));
+    }
+    r.refined = from->planes > 0 ? refine(*rt, refine_labels, *from, fopt, known.refine) : RefineResult{};
+    if (from->planes == 0) r.refined.message = "no plane has 5 of the point model's points to start the refinement from";
     stageDone(&r.seconds.refinement);
     if (r.refined.ok) {
       say(fmt::format("refine: focal {:.1f} px, {} in {:.2f} s", r.refined.state.scale_px / r.refined.state.frames.back().beta,

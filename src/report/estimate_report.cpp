@@ -144,13 +144,16 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   const nlohmann::json fin = finalEstimates(res);
   for (const char* key : {"planes", "plane_distances", "plane_normal_sd_deg", "plane_distance_sd"}) j[key] = fin[key];
   if (r.model == TrackModel::Point) {
+    // The point filter's own tracks and residuals (the online estimate's).
+    j["point_tracks"] = r.result->plane_tracks.empty() ? 0 : r.result->plane_tracks[0];
+    j["reprojection_rms_px"] = r.result->plane_rms_px.empty() ? 0.0 : r.result->plane_rms_px[0];
+  }
+  if (r.model == TrackModel::Point && !refined) {
     // No planes: the per-plane lists stay empty (the summary schema pairs them with "planes").
     j["plane_tracks"] = nlohmann::json::array();
     j["plane_new_tracks"] = nlohmann::json::array();
     j["plane_transfer_failed"] = nlohmann::json::array();
     j["plane_reprojection_rms_px"] = nlohmann::json::array();
-    j["point_tracks"] = res.plane_tracks.empty() ? 0 : res.plane_tracks[0];
-    j["reprojection_rms_px"] = res.plane_rms_px.empty() ? 0.0 : res.plane_rms_px[0];
   } else {
     j["plane_tracks"] = res.plane_tracks;
     j["plane_new_tracks"] = res.plane_new_tracks;
@@ -236,7 +239,9 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
     pn.push_back(one);
   }
   j["pass_planes"] = pn;
-  if (r.model != TrackModel::Point) {
+  // The point model's run is refined by the plane model over the planes through its points
+  // (pipeline/estimate.hpp); without a refinement it has no plane to report on.
+  if (r.model != TrackModel::Point || refined || (r.refined && !r.refined->message.empty())) {
     // What is determined (rsfm/determinacy.hpp): the refinement's verdict, else none was made.
     if (refined) {
       const RefineResult& rf = *r.refined;
