@@ -481,28 +481,9 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   double wald_t = 0, wald_r = 0;
   for (int k = 1; k < F; ++k) {
     if (b.cov_motion.size() <= static_cast<std::size_t>(k) || b.cov_motion[k].isZero(0.0)) continue;
-    const Eigen::Vector3d tk(st.t[k].x(), st.t[k].y(), st.t[k].z() / beta);
-    auto centre = [&](const Eigen::Matrix<double, 6, 1>& d) {
-      const Eigen::Matrix3d R = incrementalRotation(d.tail<3>()) * st.R[k];
-      return copCentredPose(R, Eigen::Vector3d(tk.x() + d[0], tk.y() + d[1], tk.z() + d[2] / beta), beta).position;
-    };
-    Eigen::Matrix<double, 3, 6> Jc;
-    for (int c = 0; c < 6; ++c) {
-      Eigen::Matrix<double, 6, 1> d = Eigen::Matrix<double, 6, 1>::Zero();
-      const double h = 1e-7 * std::max(1.0, c < 3 ? std::abs(st.t[k][c]) : 1.0);
-      d[c] = h;
-      const Eigen::Vector3d a = centre(d);
-      d[c] = -h;
-      Jc.col(c) = (a - centre(d)) / (2 * h);
-    }
-    const Eigen::Vector3d ck = centre(Eigen::Matrix<double, 6, 1>::Zero());
-    const Eigen::LDLT<Eigen::Matrix3d> lt(Jc * b.cov_motion[k] * Jc.transpose());
-    if (lt.info() == Eigen::Success && lt.vectorD().minCoeff() > 0) wald_t = std::max(wald_t, ck.dot(lt.solve(ck)));
-    // The rotation from the reference as a rotation vector, against the omega block.
-    const Eigen::AngleAxisd aa(st.R[k]);
-    const Eigen::Vector3d rv = aa.angle() * aa.axis();
-    const Eigen::LDLT<Eigen::Matrix3d> lr(b.cov_motion[k].bottomRightCorner<3, 3>());
-    if (lr.info() == Eigen::Success && lr.vectorD().minCoeff() > 0) wald_r = std::max(wald_r, rv.dot(lr.solve(rv)));
+    const MotionWald w = motionWald(st.R[k], st.t[k], beta, b.cov_motion[k]);
+    wald_t = std::max(wald_t, w.translation);
+    wald_r = std::max(wald_r, w.rotation);
   }
   constexpr double kObvious = 1000.0;
   r.wald_translation_chi2 = wald_t;

@@ -739,6 +739,34 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
 
 namespace rsfm {
 
+MotionWald motionWald(const Eigen::Matrix3d& R, const Eigen::Vector3d& t_state, double beta, const Eigen::Matrix<double, 6, 6>& cov) {
+  MotionWald w;
+  // The rotation from the reference as a rotation vector, against the omega block.
+  const Eigen::AngleAxisd aa(R);
+  const Eigen::Vector3d rv = aa.angle() * aa.axis();
+  const Eigen::LDLT<Eigen::Matrix3d> lr(cov.bottomRightCorner<3, 3>());
+  if (lr.info() == Eigen::Success && lr.vectorD().minCoeff() > 0) w.rotation = rv.dot(lr.solve(rv));
+  // The centre of projection (reference frame) as a function of the motion state.
+  const Eigen::Vector3d t(t_state.x(), t_state.y(), t_state.z() / beta);
+  auto centre = [&](const Eigen::Matrix<double, 6, 1>& d) {
+    const Eigen::Matrix3d Rd = incrementalRotation(d.tail<3>()) * R;
+    return copCentredPose(Rd, Eigen::Vector3d(t.x() + d[0], t.y() + d[1], t.z() + d[2] / beta), beta).position;
+  };
+  Eigen::Matrix<double, 3, 6> J;
+  for (int c = 0; c < 6; ++c) {
+    Eigen::Matrix<double, 6, 1> d = Eigen::Matrix<double, 6, 1>::Zero();
+    const double h = 1e-7 * std::max(1.0, c < 3 ? std::abs(t_state[c]) : 1.0);
+    d[c] = h;
+    const Eigen::Vector3d a = centre(d);
+    d[c] = -h;
+    J.col(c) = (a - centre(d)) / (2 * h);
+  }
+  const Eigen::Vector3d ck = centre(Eigen::Matrix<double, 6, 1>::Zero());
+  const Eigen::LDLT<Eigen::Matrix3d> lt(J * cov * J.transpose());
+  if (lt.info() == Eigen::Success && lt.vectorD().minCoeff() > 0) w.translation = ck.dot(lt.solve(ck));
+  return w;
+}
+
 FilterDeterminacy filterDeterminacy(const TrackFilterResult& result, bool known_focal) {
   FilterDeterminacy d;
   if (result.frames.empty()) return d;
@@ -751,30 +779,9 @@ FilterDeterminacy filterDeterminacy(const TrackFilterResult& result, bool known_
   for (std::size_t k = static_cast<std::size_t>(result.still_frames) + 1; k < result.frames.size(); ++k) {
     const TrackFrame& fk = result.frames[k];
     if (fk.still || fk.cov_motion.isZero(0.0) || !(fk.beta > 0)) continue;
-    const Eigen::AngleAxisd aa(fk.R);
-    const Eigen::Vector3d rv = aa.angle() * aa.axis();
-    const Eigen::LDLT<Eigen::Matrix3d> lr(fk.cov_motion.bottomRightCorner<3, 3>());
-    if (lr.info() == Eigen::Success && lr.vectorD().minCoeff() > 0)
-      d.wald_rotation_chi2 = std::max(d.wald_rotation_chi2, rv.dot(lr.solve(rv)));
-    // The centre of projection (reference frame) as a function of the motion state (t_X, t_Y,
-    // t_Z beta, omega), its Jacobian by central differences (as the refinement's).
-    auto centre = [&](const Eigen::Matrix<double, 6, 1>& dx) {
-      const Eigen::Matrix3d R = incrementalRotation(dx.tail<3>()) * fk.R;
-      return copCentredPose(R, Eigen::Vector3d(fk.t.x() + dx[0], fk.t.y() + dx[1], fk.t.z() + dx[2] / fk.beta), fk.beta).position;
-    };
-    Eigen::Matrix<double, 3, 6> J;
-    for (int c = 0; c < 6; ++c) {
-      Eigen::Matrix<double, 6, 1> dx = Eigen::Matrix<double, 6, 1>::Zero();
-      const double h = 1e-7 * std::max(1.0, c < 3 ? std::abs(c == 2 ? fk.t.z() * fk.beta : fk.t[c]) : 1.0);
-      dx[c] = h;
-      const Eigen::Vector3d a = centre(dx);
-      dx[c] = -h;
-      J.col(c) = (a - centre(dx)) / (2 * h);
-    }
-    const Eigen::Vector3d ck = centre(Eigen::Matrix<double, 6, 1>::Zero());
-    const Eigen::LDLT<Eigen::Matrix3d> lt(J * fk.cov_motion * J.transpose());
-    if (lt.info() == Eigen::Success && lt.vectorD().minCoeff() > 0)
-      d.wald_translation_chi2 = std::max(d.wald_translation_chi2, ck.dot(lt.solve(ck)));
+    const MotionWald w = motionWald(fk.R, Eigen::Vector3d(fk.t.x(), fk.t.y(), fk.t.z() * fk.beta), fk.beta, fk.cov_motion);
+    d.wald_rotation_chi2 = std::max(d.wald_rotation_chi2, w.rotation);
+    d.wald_translation_chi2 = std::max(d.wald_translation_chi2, w.translation);
   }
   d.rotates = known_focal || d.wald_rotation_chi2 > quantile;
   d.translates = d.wald_translation_chi2 > quantile;

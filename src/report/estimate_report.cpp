@@ -134,6 +134,38 @@ nlohmann::json figuresJson(const Figures& f) {
   return j;
 }
 
+namespace {
+
+/// The determinacy keys of summary.json (docs/outputs.md), from a verdict (the refinement's or
+/// the filter's): `focal_determined` (false: `focal_px` and `focal_sd_px` null, the value kept as
+/// `focal_estimate_px` for inspection only); with `plane_determined` (null: no planes to judge)
+/// the list, a plane not determined without sds (issue 17: 3.5 deg was reported for a normal 43
+/// deg off under pure rotation; its normal and distance are kept for inspection), each angle
+/// between planes `determined` when both are, and `structure_determined`; `not_determined_why`.
+void markDeterminacy(nlohmann::json* out, bool focal_determined, const std::vector<bool>* plane_determined, const std::string& why) {
+  nlohmann::json& j = *out;
+  j["focal_determined"] = focal_determined;
+  if (!focal_determined) {
+    j["focal_estimate_px"] = j["focal_px"];
+    j["focal_px"] = nullptr;
+    j["focal_sd_px"] = nullptr;
+  }
+  if (plane_determined) {
+    const std::vector<bool>& pd = *plane_determined;
+    j["plane_determined"] = pd;
+    for (std::size_t i = 0; i < pd.size() && i < j["plane_normal_sd_deg"].size(); ++i)
+      if (!pd[i]) j["plane_normal_sd_deg"][i] = j["plane_distance_sd"][i] = nullptr;
+    for (auto& a : j["angles_between_planes_deg"]) {
+      const auto pa = a["planes"][0].get<std::size_t>(), pb = a["planes"][1].get<std::size_t>();
+      a["determined"] = pa < pd.size() && pb < pd.size() && pd[pa] && pd[pb];
+    }
+    j["structure_determined"] = std::all_of(pd.begin(), pd.end(), [](bool b) { return b; });
+  }
+  j["not_determined_why"] = why;
+}
+
+}  // namespace
+
 nlohmann::json estimateSummary(const EstimateReport& r) {
   const Tracks& t = *r.tracks;
   const bool refined = refinedOk(r);
@@ -245,26 +277,11 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
     // What is determined (rsfm/determinacy.hpp): the refinement's verdict, else none was made.
     if (refined) {
       const RefineResult& rf = *r.refined;
-      j["focal_determined"] = rf.focal_determined;
+      markDeterminacy(&j, rf.focal_determined, &rf.plane_determined, rf.why);
       if (!rf.focal_determined) {
-        j["focal_estimate_px"] = j["focal_px"];  // the optimum's value, for inspection only
-        j["focal_px"] = nullptr;
-        j["focal_sd_px"] = nullptr;
         if (rf.focal_interval_px) j["focal_interval_px"] = io::focalIntervalJson((*rf.focal_interval_px)[0], (*rf.focal_interval_px)[1]);
         if (rf.focal_profile_best_px > 0) j["focal_profile_best_px"] = rf.focal_profile_best_px;
       }
-      j["plane_determined"] = rf.plane_determined;
-      // A plane the data do not determine gets no sd (issue 17: 3.5 deg was reported for a normal
-      // 43 deg off under pure rotation): its normal and distance are the optimum's, for inspection.
-      for (std::size_t i = 0; i < rf.plane_determined.size() && i < j["plane_normal_sd_deg"].size(); ++i)
-        if (!rf.plane_determined[i]) j["plane_normal_sd_deg"][i] = j["plane_distance_sd"][i] = nullptr;
-      for (auto& a : j["angles_between_planes_deg"]) {
-        const auto pa = a["planes"][0].get<std::size_t>(), pb = a["planes"][1].get<std::size_t>();
-        a["determined"] = pa < rf.plane_determined.size() && pb < rf.plane_determined.size() &&
-                          rf.plane_determined[pa] && rf.plane_determined[pb];
-      }
-      j["structure_determined"] = std::all_of(rf.plane_determined.begin(), rf.plane_determined.end(), [](bool b) { return b; });
-      j["not_determined_why"] = rf.why;
       const double sp = res.scale_px;
       auto sd = [&](int c) { return std::sqrt(std::max(0.0, rf.cov_camera(c, c))); };
       j["camera"] = {{"principal_point_px", {rf.principal_point_px.x(), rf.principal_point_px.y()}},
@@ -318,27 +335,10 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   if (!refined) {
     // No refinement: the filter alone's verdict from its calibrated sds (FilterDeterminacy,
     // pipeline/track_filter.hpp; the refinement's limits).
+    // No focal_interval_px for a focal length not determined: without the refinement's profile
+    // no interval is known to be supported (not_determined_why gives the filter's linear one).
     const FilterDeterminacy d = filterDeterminacy(res, r.focal_given);
-    j["focal_determined"] = d.focal_determined;
-    if (!d.focal_determined) {
-      j["focal_estimate_px"] = j["focal_px"];  // the filter's value, for inspection only
-      j["focal_px"] = nullptr;
-      j["focal_sd_px"] = nullptr;
-      // No focal_interval_px: without the refinement's profile no interval is known to be
-      // supported (not_determined_why gives the filter's linear one).
-    }
-    if (r.model != TrackModel::Point) {
-      j["plane_determined"] = d.plane_determined;
-      for (std::size_t i = 0; i < d.plane_determined.size() && i < j["plane_normal_sd_deg"].size(); ++i)
-        if (!d.plane_determined[i]) j["plane_normal_sd_deg"][i] = j["plane_distance_sd"][i] = nullptr;
-      for (auto& a : j["angles_between_planes_deg"]) {
-        const auto pa = a["planes"][0].get<std::size_t>(), pb = a["planes"][1].get<std::size_t>();
-        a["determined"] = pa < d.plane_determined.size() && pb < d.plane_determined.size() && d.plane_determined[pa] &&
-                          d.plane_determined[pb];
-      }
-      j["structure_determined"] = std::all_of(d.plane_determined.begin(), d.plane_determined.end(), [](bool b) { return b; });
-    }
-    j["not_determined_why"] = d.why;
+    markDeterminacy(&j, d.focal_determined, r.model != TrackModel::Point ? &d.plane_determined : nullptr, d.why);
   }
   if (r.focal_given) j["focal_given"] = true;
   if (r.given_camera) {

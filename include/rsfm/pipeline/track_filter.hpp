@@ -237,6 +237,19 @@ MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matr
 /// plane the record does not hold): metricPlane's `cov`.
 Eigen::Matrix4d covBetaN(const TrackFrame& f, int j);
 
+/// Wald statistics of one frame's motion against its covariance `cov` over the motion state
+/// (t_X, t_Y, t_Z beta, omega; TrackFrame::cov_motion, RefineResult::cov_motion), the tests for
+/// a rotation and a translation of docs/estimate.md sections 3 and 4: `rotation` = r^T C_r^-1 r
+/// with r the rotation vector of R (reference -> frame) and C_r the omega block; `translation` =
+/// c^T C_c^-1 c with c the frame's centre of projection in the reference frame (camera.hpp,
+/// copCentredPose) and C_c = J cov J^T, J its Jacobian with respect to the motion state by
+/// central differences. `t_state` = (t_X, t_Y, t_Z beta) (scene units). A statistic whose
+/// covariance is not positive definite is 0 (no evidence).
+struct MotionWald {
+  double rotation = 0.0, translation = 0.0;
+};
+MotionWald motionWald(const Eigen::Matrix3d& R, const Eigen::Vector3d& t_state, double beta, const Eigen::Matrix<double, 6, 6>& cov);
+
 /// The filter alone's verdict on what its data determine, for a run without a refinement
 /// (`--refine none`, the point model, a refinement that failed): the refinement's limits
 /// (rsfm/determinacy.hpp: focal sd <= 5 % of itself, a normal's sd <= 5 deg) applied to the last
