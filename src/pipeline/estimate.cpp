@@ -403,14 +403,19 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   // The start's focal length at an end of its grid: warned about unless the refinement then
   // determines the focal length from the whole sequence (box.mp4's windows @8, @16).
   bool start_at_grid_end = false;
-  if (o.homography_start && fopt.model != TrackModel::Point) {
+  if (o.homography_start) {
     r.start_tried = true;
     r.start = vision::planeStart(tracks, pf, fopt.focal_px);
     vision::PlaneStart& start = r.start;
     const int m = fopt.model == TrackModel::Plane ? 1 : pf.numPlanes();
     if (!start.ok) say("start: " + start.note + "; planes start frontal");
-    else if (start.hypotheses.size() > 1)
-      scoreStartHypotheses(tracks, pf.labels, fopt, m, &start);
+    else if (start.hypotheses.size() > 1) {
+      // The point model starts its depths on the chosen hypothesis's planes; the hypotheses are
+      // scored by the planes model's filter (they are hypotheses about planes).
+      TrackFilterOptions scoring = fopt;
+      if (scoring.model == TrackModel::Point) scoring.model = TrackModel::Planes;
+      scoreStartHypotheses(tracks, pf.labels, scoring, m, &start);
+    }
     const vision::StartHypothesis& h = start.used();
     fopt = startOptions(fopt, h, m);
     if (start.hypotheses.size() > 1) {

@@ -303,6 +303,34 @@ LateStart startLatePlane(const Tracks& tracks, const std::vector<int>& labels, c
   return out;
 }
 
+/// The planes' start (N per plane, reference frame): every plane frontal where the scale gauge
+/// puts the main plane, or the homography start's normals and relative distances
+/// (TrackFilterOptions::initial_normals) with plane 0's N_Z at the gauge.
+std::vector<Eigen::Vector3d> startPlanes(const TrackFilterOptions& o, double beta0, int m) {
+  // Scale gauge: the main plane meets the optical axis depth0 / beta0 beyond the image-plane
+  // origin (N_Z = beta0 / depth0), so that every plane in view lies well beyond the A&P origin
+  // (which sits 1/beta from the centre of projection) and starts as a frontal plane there.
+  const double nz0 = beta0 / o.depth0;
+  std::vector<Eigen::Vector3d> N_start(m, Eigen::Vector3d(0.0, 0.0, nz0));
+  if (!o.initial_normals.empty()) {
+    if (static_cast<int>(o.initial_normals.size()) != m || o.initial_distance_ratios.size() != o.initial_normals.size())
+      throw std::invalid_argument("estimate: initial normals/distances do not match the number of planes");
+    // Plane 0: n_0 . Y = d_0 (COP-centred) with N_0Z = nz0: N_0 = n_0 / (d_0 - n_0Z / beta0).
+    const Eigen::Vector3d n0 = o.initial_normals[0].normalized();
+    if (n0.z() > 0.05) {
+      const double d0 = n0.z() / nz0 + n0.z() / beta0;
+      for (int j = 0; j < m; ++j) {
+        const Eigen::Vector3d nj = o.initial_normals[j].normalized();
+        const double dj = d0 * o.initial_distance_ratios[j];
+        const double den = dj - nj.z() / beta0;
+        if (std::abs(den) > 1e-9 && std::isfinite(den)) N_start[j] = nj / den;
+      }
+      N_start[0].z() = nz0;
+    }
+  }
+  return N_start;
+}
+
 /// Transfers the late plane's tracks alive now to the reference frame through plane N (into
 /// ls->ids and ls->ref). Returns how many could not be carried (the point would lie behind the
 /// reference camera or on its horizon), for TrackFilterResult::transfer_failed.
@@ -411,9 +439,20 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     x0[idx::kBeta] = beta0;
     P0(idx::kBeta, idx::kBeta) = known_focal ? 0.0 : std::pow(beta_sd0 * beta0, 2);
     fixed[idx::kBeta] = known_focal;
+    // Every point starts at the gauge depth (as the plane models' frontal start), or with a
+    // homography start (TrackFilterOptions::initial_normals) on its plane's start: the depth
+    // where its reference ray meets that plane ([AS99] eq. 12), when in front of the camera.
+    std::vector<Eigen::Vector3d> N_start;
+    if (!o.initial_normals.empty()) N_start = startPlanes(o, beta0, static_cast<int>(o.initial_normals.size()));
     for (int i = 7; i < n; ++i) {
-      x0[i] = o.depth0 / beta0;  // every point starts at the gauge depth (as the plane models' frontal start)
-      P0(i, i) = std::pow(o.depth_sd0 * o.depth0 / beta0, 2);
+      x0[i] = o.depth0 / beta0;
+      const int l = labels[ids[static_cast<size_t>(i - 7)]];
+      Eigen::Vector3d p;
+      if (l >= 0 && l < static_cast<int>(N_start.size()) &&
+          PlaneModel::point(N_start[static_cast<size_t>(l)], beta0, ref[static_cast<size_t>(i - 7)], &p, nullptr, nullptr) == MeasureStatus::Ok &&
+          p.z() > 0 && std::isfinite(p.z()))
+        x0[i] = p.z();
+      P0(i, i) = std::pow(o.depth_sd0 * x0[i], 2);
     }
     P0(7, 7) = 0.0;
     fixed[7] = true;  // scale gauge: the first point's depth
@@ -523,27 +562,8 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
                                   " tracks in the reference frame, the plane model needs at least 5");
   if (o.passes < 1) throw std::invalid_argument("estimate: passes must be >= 1");
   double beta_start = beta0;
-  // Scale gauge: the main plane meets the optical axis depth0 / beta0 beyond the image-plane
-  // origin (N_Z = beta0 / depth0), so that every plane in view lies well beyond the A&P origin
-  // (which sits 1/beta from the centre of projection) and starts as a frontal plane there.
-  const double nz0 = beta0 / o.depth0;
-  std::vector<Eigen::Vector3d> N_start(m, Eigen::Vector3d(0.0, 0.0, nz0));
-  if (!o.initial_normals.empty()) {
-    if (static_cast<int>(o.initial_normals.size()) != m || o.initial_distance_ratios.size() != o.initial_normals.size())
-      throw std::invalid_argument("estimate: initial normals/distances do not match the number of planes");
-    // Plane 0: n_0 . Y = d_0 (COP-centred) with N_0Z = nz0: N_0 = n_0 / (d_0 - n_0Z / beta0).
-    const Eigen::Vector3d n0 = o.initial_normals[0].normalized();
-    if (n0.z() > 0.05) {
-      const double d0 = n0.z() / nz0 + n0.z() / beta0;
-      for (int j = 0; j < m; ++j) {
-        const Eigen::Vector3d nj = o.initial_normals[j].normalized();
-        const double dj = d0 * o.initial_distance_ratios[j];
-        const double den = dj - nj.z() / beta0;
-        if (std::abs(den) > 1e-9 && std::isfinite(den)) N_start[j] = nj / den;
-      }
-      N_start[0].z() = nz0;
-    }
-  }
+  const double nz0 = beta0 / o.depth0;  // the gauge's N_Z (startPlanes)
+  std::vector<Eigen::Vector3d> N_start = startPlanes(o, beta0, m);
   ResidualSeries series;
   for (int pass = 1; pass <= o.passes; ++pass) {
     res.frames.clear();
