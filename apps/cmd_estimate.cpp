@@ -182,7 +182,7 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
       ->delimiter(',')
       ->expected(2);
   a->add_option("--refine", e->refine,
-                "final | none (final: a bundle adjustment of the plane model over every frame after the filter; the point model's run over the planes through its tracks; docs/estimate.md section 4)")
+                "final | none (final: a bundle adjustment of the plane model over every frame after the filter, also for the point model's run; docs/estimate.md section 4)")
       ->capture_default_str();
   a->add_option("--out", e->out, "output directory")->capture_default_str();
   a->add_flag("--quiet", e->quiet, "no progress on stderr");

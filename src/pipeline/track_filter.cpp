@@ -490,35 +490,6 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     }
     res.plane_rms_px = {cnt[0] ? std::sqrt(sum2[0] / cnt[0]) : 0.0};
     calibrateSds(series, o.sigma_px, &res);
-    {
-      // The planes through the tracks, per label (the refinement's start): each track of the
-      // reference frame triangulated between it and its last frame in the run with the filter's
-      // poses and final beta (a ray's direction is known to ~sigma / f rad: 3 such sds of
-      // parallax), the plane fitted to the points (the point filter's own ~60 points may all lie
-      // on one plane: its longest tracks).
-      const double beta = res.frames.back().beta;
-      const int run = static_cast<int>(res.frames.size());
-      int labels_seen = 0;
-      for (int id : ids) labels_seen = std::max(labels_seen, labels[id] + 1);
-      for (const TrackPoint& p : tracks.frames[0])
-        if (usable(p.id, 1 << 30)) labels_seen = std::max(labels_seen, labels[p.id] + 1);
-      std::vector<std::vector<Eigen::Vector3d>> on(labels_seen);
-      for (const TrackPoint& p : tracks.frames[0]) {
-        if (!usable(p.id, labels_seen)) continue;
-        const int k = std::min(spans[p.id].last, run - 1);
-        const TrackPoint* q = k > 0 ? tracks.find(k, p.id) : nullptr;
-        Eigen::Vector3d X;
-        if (q && PlaneModel::twoViewPoint(beta, res.frames[0].R, res.frames[0].t, uvOf(p.px), res.frames[k].R, res.frames[k].t,
-                                          uvOf(q->px), 3.0 * o.sigma_px * beta / s, &X) == MeasureStatus::Ok)
-          on[labels[p.id]].push_back(X);
-      }
-      res.point_planes.resize(labels_seen);
-      for (int j = 0; j < labels_seen; ++j) {
-        Eigen::Vector3d N;
-        Eigen::Matrix3d C;
-        if (fitPlaneToPoints(on[j], &N, &C) && N.allFinite()) res.point_planes[j] = N;
-      }
-    }
     return res;
   }
 

@@ -167,14 +167,6 @@ struct TrackFilterResult {
   /// unused). Plane j's entries everywhere in this result (N per frame, plane_tracks, ...) are
   /// the state's plane j.
   std::vector<int> plane_of_label;
-  /// Point model: per label of the plane finder (0 .. the largest label of a usable reference
-  /// track), the plane N . X = 1 ([AS99] eq. 12, reference frame) fitted to its reference tracks
-  /// triangulated between the reference frame and each track's last frame of the run with the
-  /// filter's poses and final beta (PlaneModel::twoViewPoint; rays meeting at 3 tracking-noise sds
-  /// at least; least squares with one robust round); nullopt with fewer than 5 points ([AS99]
-  /// §3.1). The point model has no planes in its state; these start the refinement (estimate(),
-  /// docs/estimate.md section 4). Empty for the plane models.
-  std::vector<std::optional<Eigen::Vector3d>> point_planes;
   /// Per plane: the frame index from which the filter estimates it (0: a reference-frame plane).
   /// frames[k].N[j] for k before it repeats its value at that frame (not an estimate: the plane
   /// was not yet in the state).
