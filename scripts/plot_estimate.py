@@ -96,13 +96,17 @@ def main():
     # Normals.
     fig, ax = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for p, d in sorted(planes.items()):
+    # Every plane of the filter and of the refinement (a point model's run has refined planes
+    # only: its filter has none).
+    for p in sorted(set(planes) | {q for q in refined if q >= 0}):
         c = colours[p % len(colours)]
+        d = planes.get(p)
         for r, key in enumerate(("az", "el")):
-            lo = [v - s for v, s in zip(d[key], d["sd"])]
-            hi = [v + s for v, s in zip(d[key], d["sd"])]
-            ax[r].plot(d["frame"], d[key], color=c, lw=1.4, label=f"plane {p} (filter)")
-            ax[r].fill_between(d["frame"], lo, hi, color=c, alpha=0.2, lw=0)
+            if d:
+                lo = [v - s for v, s in zip(d[key], d["sd"])]
+                hi = [v + s for v, s in zip(d[key], d["sd"])]
+                ax[r].plot(d["frame"], d[key], color=c, lw=1.4, label=f"plane {p} (filter)")
+                ax[r].fill_between(d["frame"], lo, hi, color=c, alpha=0.2, lw=0)
             if p in refined:
                 v, sd = refined[p][r], refined[p][2]
                 ax[r].axhline(v, color=c, ls="--", lw=1.0, label=f"plane {p} refined" if r == 0 else None)
@@ -112,10 +116,13 @@ def main():
     ax[1].set_xlabel("frame")
     for a in ax:
         a.grid(alpha=0.3)
-    if planes:
+    if planes or any(q >= 0 for q in refined):
         ax[0].legend(fontsize=8)
-    else:
-        ax[0].text(0.5, 0.5, "point model: no planes", ha="center", transform=ax[0].transAxes)
+    if not planes:
+        ax[0].text(0.5, 0.5, "point model: no planes in the filter" + (" (refined planes dashed)" if refined else ""),
+                   ha="center", transform=ax[0].transAxes)
+    if not planes and any(q >= 0 for q in refined) and focal:
+        ax[1].set_xlim(min(focal), max(focal))  # the filter's frames (no curve sets them)
     fig.suptitle("Plane normals (reference camera frame, 1-sigma bands)", fontsize=11)
     fig.tight_layout()
     fig.savefig(sys.argv[5], dpi=110)
