@@ -271,8 +271,8 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
     pn.push_back(one);
   }
   j["pass_planes"] = pn;
-  // The point model's run is refined by the plane model over the planes through its points
-  // (pipeline/estimate.hpp); without a refinement it has no plane to report on.
+  // The point model's run is refined from the planes model's filter (estimate(),
+  // docs/estimate.md section 4); without a refinement it has no plane to report on.
   if (r.model != TrackModel::Point || refined || (r.refined && !r.refined->message.empty())) {
     // What is determined (rsfm/determinacy.hpp): the refinement's verdict, else none was made.
     if (refined) {

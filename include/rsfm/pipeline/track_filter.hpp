@@ -243,7 +243,7 @@ struct MotionWald {
 MotionWald motionWald(const Eigen::Matrix3d& R, const Eigen::Vector3d& t_state, double beta, const Eigen::Matrix<double, 6, 6>& cov);
 
 /// The filter alone's verdict on what its data determine, for a run without a refinement
-/// (`--refine none`, the point model, a refinement that failed): the refinement's limits
+/// (`--refine none`, a refinement that failed or could not start): the refinement's limits
 /// (rsfm/determinacy.hpp: focal sd <= 5 % of itself, a normal's sd <= 5 deg) applied to the last
 /// frame's calibrated covariance (TrackFilterResult::SdCalibration), and the refinement's tests
 /// for a rotation and a translation: without a rotation (a camera that only translates) the
