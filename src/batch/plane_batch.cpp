@@ -143,18 +143,36 @@ struct PointCache {
   PlanePoint pt;
 };
 
-/// One observation at frame k >= 1. Parameter blocks: motion (6), beta (1), N (3)[, ref (2)][, camera (4)].
+/// Where a point's reference position sits in its parameter block: the refinement keeps the
+/// references of `group` consecutive points in one block (PlaneBatchOptions::reference_group),
+/// this point's at 2 x index. A residual's Jacobian block for it is 2 x (2 group), zero but for
+/// the point's two columns.
+struct RefSlot {
+  int group = 1, index = 0;
+  /// The point's reference position in `block`.
+  Eigen::Vector2d read(const double* block) const { return {block[2 * index], block[2 * index + 1]}; }
+  /// Its 2 x 2 Jacobian `Ju` as the residual's 2 x (2 group) row-major block `J`.
+  void write(const Eigen::Matrix2d& Ju, double* J) const {
+    const int w = 2 * group;
+    std::fill(J, J + 2 * w, 0.0);
+    for (int r = 0; r < 2; ++r)
+      for (int c = 0; c < 2; ++c) J[r * w + 2 * index + c] = Ju(r, c);  // row-major
+  }
+};
+
+/// One observation at frame k >= 1. Parameter blocks: motion (6), beta (1), N (3)[, ref (2 group)][, camera (4)].
 class ObservationCost final : public ceres::CostFunction {
  public:
   ObservationCost(const Eigen::Matrix3d& R_base, const Eigen::Vector2d& z, double sigma,
-                  const Eigen::Vector2d* fixed_ref, bool camera, MotionCache* mc, PointCache* pc)
-      : R_base_(R_base), z_(z), sigma_(sigma), has_fixed_ref_(fixed_ref != nullptr), camera_(camera), mc_(mc), pc_(pc) {
+                  const Eigen::Vector2d* fixed_ref, bool camera, MotionCache* mc, PointCache* pc, RefSlot slot = {})
+      : R_base_(R_base), z_(z), sigma_(sigma), has_fixed_ref_(fixed_ref != nullptr), camera_(camera), mc_(mc), pc_(pc),
+        slot_(slot) {
     if (fixed_ref) fixed_ref_ = *fixed_ref;
     set_num_residuals(2);
     mutable_parameter_block_sizes()->push_back(6);
     mutable_parameter_block_sizes()->push_back(1);
     mutable_parameter_block_sizes()->push_back(3);
-    if (!has_fixed_ref_) mutable_parameter_block_sizes()->push_back(2);
+    if (!has_fixed_ref_) mutable_parameter_block_sizes()->push_back(2 * slot_.group);
     if (camera_) mutable_parameter_block_sizes()->push_back(4);
   }
 
@@ -163,7 +181,7 @@ class ObservationCost final : public ceres::CostFunction {
     const double beta = params[1][0];
     const Eigen::Map<const Eigen::Vector3d> N(params[2]);
     const Eigen::Vector2d ref =
-        has_fixed_ref_ ? fixed_ref_ : Eigen::Vector2d(params[3][0], params[3][1]);
+        has_fixed_ref_ ? fixed_ref_ : slot_.read(params[3]);
     Eigen::Vector2d r;
     Eigen::Matrix<double, 2, 6> Jm;
     Eigen::Vector2d Jb;
@@ -197,7 +215,6 @@ class ObservationCost final : public ceres::CostFunction {
     if (jacobians) {
       using M26 = Eigen::Matrix<double, 2, 6, Eigen::RowMajor>;
       using M23 = Eigen::Matrix<double, 2, 3, Eigen::RowMajor>;
-      using M22 = Eigen::Matrix<double, 2, 2, Eigen::RowMajor>;
       if (jacobians[0]) {
         Eigen::Map<M26> J0(jacobians[0]);
         J0 = Jm;
@@ -210,10 +227,7 @@ class ObservationCost final : public ceres::CostFunction {
         Eigen::Map<M23> J2(jacobians[2]);
         J2 = JN;
       }
-      if (!has_fixed_ref_ && jacobians[3]) {
-        Eigen::Map<M22> J3(jacobians[3]);
-        J3 = Ju;
-      }
+      if (!has_fixed_ref_ && jacobians[3]) slot_.write(Ju, jacobians[3]);
       if (camera_ && jacobians[cam_block]) {
         Eigen::Map<Eigen::Matrix<double, 2, 4, Eigen::RowMajor>> J4(jacobians[cam_block]);
         J4 = Jc;
@@ -230,6 +244,7 @@ class ObservationCost final : public ceres::CostFunction {
   bool camera_;
   MotionCache* mc_;
   PointCache* pc_;
+  RefSlot slot_;
   Eigen::Vector2d fixed_ref_ = Eigen::Vector2d::Zero();
 };
 
@@ -237,17 +252,18 @@ class ObservationCost final : public ceres::CostFunction {
 /// beta (1), ref (2)[, camera (4)].
 class RotationObservationCost final : public ceres::CostFunction {
  public:
-  RotationObservationCost(const Eigen::Matrix3d& R_base, const Eigen::Vector2d& z, double sigma, bool camera)
-      : R_base_(R_base), z_(z), sigma_(sigma), camera_(camera) {
+  RotationObservationCost(const Eigen::Matrix3d& R_base, const Eigen::Vector2d& z, double sigma, bool camera,
+                          RefSlot slot = {})
+      : R_base_(R_base), z_(z), sigma_(sigma), camera_(camera), slot_(slot) {
     set_num_residuals(2);
     mutable_parameter_block_sizes()->push_back(6);
     mutable_parameter_block_sizes()->push_back(1);
-    mutable_parameter_block_sizes()->push_back(2);
+    mutable_parameter_block_sizes()->push_back(2 * slot_.group);
     if (camera_) mutable_parameter_block_sizes()->push_back(4);
   }
   bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
     const Eigen::Vector3d omega(params[0][3], params[0][4], params[0][5]);
-    const Eigen::Vector2d ref(params[2][0], params[2][1]);
+    const Eigen::Vector2d ref = slot_.read(params[2]);
     Eigen::Vector4d cam = Eigen::Vector4d::Zero();
     if (camera_) cam = Eigen::Map<const Eigen::Vector4d>(params[3]);
     Eigen::Vector2d r, Jb;
@@ -269,10 +285,7 @@ class RotationObservationCost final : public ceres::CostFunction {
         Eigen::Map<Eigen::Vector2d> J1(jacobians[1]);
         J1 = Jb;
       }
-      if (jacobians[2]) {
-        Eigen::Map<Eigen::Matrix<double, 2, 2, Eigen::RowMajor>> J2(jacobians[2]);
-        J2 = Ju;
-      }
+      if (jacobians[2]) slot_.write(Ju, jacobians[2]);
       if (camera_ && jacobians[3]) {
         Eigen::Map<Eigen::Matrix<double, 2, 4, Eigen::RowMajor>> J3(jacobians[3]);
         J3 = Jc;
@@ -286,6 +299,7 @@ class RotationObservationCost final : public ceres::CostFunction {
   Eigen::Vector2d z_;
   double sigma_;
   bool camera_;
+  RefSlot slot_;
 };
 
 /// Gaussian priors on the camera's components about zero: (camera_c / sd_c) for sd_c > 0.
@@ -307,12 +321,17 @@ class CameraPriorCost final : public ceres::SizedCostFunction<4, 4> {
   std::array<double, 4> w_{};
 };
 
-/// Reference-frame observation through the camera: blocks ref (2), beta (1), camera (4).
-class ReferenceCameraCost final : public ceres::SizedCostFunction<2, 2, 1, 4> {
+/// Reference-frame observation through the camera: blocks ref (2 group), beta (1), camera (4).
+class ReferenceCameraCost final : public ceres::CostFunction {
  public:
-  ReferenceCameraCost(const Eigen::Vector2d& z, double sigma) : z_(z), sigma_(sigma) {}
+  ReferenceCameraCost(const Eigen::Vector2d& z, double sigma, RefSlot slot = {}) : z_(z), sigma_(sigma), slot_(slot) {
+    set_num_residuals(2);
+    mutable_parameter_block_sizes()->push_back(2 * slot_.group);
+    mutable_parameter_block_sizes()->push_back(1);
+    mutable_parameter_block_sizes()->push_back(4);
+  }
   bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
-    const Eigen::Vector2d ref(params[0][0], params[0][1]);
+    const Eigen::Vector2d ref = slot_.read(params[0]);
     const Eigen::Map<const Eigen::Vector4d> cam(params[2]);
     Eigen::Vector2d r, Jb;
     Eigen::Matrix2d Ju;
@@ -321,10 +340,7 @@ class ReferenceCameraCost final : public ceres::SizedCostFunction<2, 2, 1, 4> {
     residuals[0] = r[0];
     residuals[1] = r[1];
     if (jacobians) {
-      if (jacobians[0]) {
-        Eigen::Map<Eigen::Matrix<double, 2, 2, Eigen::RowMajor>> J0(jacobians[0]);
-        J0 = Ju;
-      }
+      if (jacobians[0]) slot_.write(Ju, jacobians[0]);
       if (jacobians[1]) {
         Eigen::Map<Eigen::Vector2d> J1(jacobians[1]);
         J1 = Jb;
@@ -340,27 +356,28 @@ class ReferenceCameraCost final : public ceres::SizedCostFunction<2, 2, 1, 4> {
  private:
   Eigen::Vector2d z_;
   double sigma_;
+  RefSlot slot_;
 };
 
-/// Reference-frame observation of a point whose reference position is a parameter.
-class ReferenceCost final : public ceres::SizedCostFunction<2, 2> {
+/// Reference-frame observation of a point whose reference position is a parameter (block: ref (2 group)).
+class ReferenceCost final : public ceres::CostFunction {
  public:
-  ReferenceCost(const Eigen::Vector2d& z, double sigma) : z_(z), w_(1.0 / sigma) {}
+  ReferenceCost(const Eigen::Vector2d& z, double sigma, RefSlot slot = {}) : z_(z), w_(1.0 / sigma), slot_(slot) {
+    set_num_residuals(2);
+    mutable_parameter_block_sizes()->push_back(2 * slot_.group);
+  }
   bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
-    residuals[0] = (params[0][0] - z_.x()) * w_;
-    residuals[1] = (params[0][1] - z_.y()) * w_;
-    if (jacobians && jacobians[0]) {
-      jacobians[0][0] = w_;
-      jacobians[0][1] = 0.0;
-      jacobians[0][2] = 0.0;
-      jacobians[0][3] = w_;
-    }
+    const Eigen::Vector2d ref = slot_.read(params[0]);
+    residuals[0] = (ref.x() - z_.x()) * w_;
+    residuals[1] = (ref.y() - z_.y()) * w_;
+    if (jacobians && jacobians[0]) slot_.write(Eigen::Matrix2d::Identity() * w_, jacobians[0]);
     return true;
   }
 
  private:
   Eigen::Vector2d z_;
   double w_;
+  RefSlot slot_;
 };
 
 }  // namespace
@@ -452,14 +469,38 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
     if (std::any_of(prior.begin(), prior.end(), [](double v) { return v > 0; }))
       problem.AddResidualBlock(new CameraPriorCost(prior), nullptr, camera.data());
   }
+  // The references' parameter blocks: with the motions eliminated first, Ceres' Schur
+  // elimination updates the reduced matrix one cell per pair of blocks seen in a frame, each cell
+  // behind a lock (docs/performance.md, "The refinement"); `reference_group` consecutive points
+  // observed in the problem share one block, so there are group^2 times fewer, larger cells.
+  // The problem and its optimum are the same (a block's other columns have zero Jacobians).
+  std::vector<RefSlot> slot(P);  // a point never observed: {1, 0}, not a parameter
+  {
+    const int g = options.eliminate_motions_first ? std::max(1, options.reference_group) : 1;
+    std::vector<char> seen(P, 0);
+    for (int k = options.estimate_references ? 0 : 1; k <= F; ++k)
+      for (const Observation& o : data.frames[k])
+        if (o.id >= 0 && o.id < P) seen[o.id] = 1;
+    for (int i = 0; i < P;) {
+      if (!seen[i]) {
+        ++i;
+        continue;
+      }
+      int n = 0;
+      while (n < g && i + n < P && seen[i + n]) ++n;
+      for (int j = 0; j < n; ++j) slot[i + j] = RefSlot{n, j};
+      i += n;
+    }
+  }
+  auto refBlock = [&](int i) { return ref[i - slot[i].index].data(); };  // its group's first point
   if (options.estimate_references) {
     for (const Observation& o : data.frames[0]) {
       if (o.id < 0 || o.id >= P) continue;
       if (use_camera)
-        problem.AddResidualBlock(new ReferenceCameraCost(o.uv, data.sigma_uv), loss, ref[o.id].data(), &beta,
+        problem.AddResidualBlock(new ReferenceCameraCost(o.uv, data.sigma_uv, slot[o.id]), loss, refBlock(o.id), &beta,
                                  camera.data());
       else
-        problem.AddResidualBlock(new ReferenceCost(o.uv, data.sigma_uv), loss, ref[o.id].data());
+        problem.AddResidualBlock(new ReferenceCost(o.uv, data.sigma_uv, slot[o.id]), loss, refBlock(o.id));
       ++res.residuals;
     }
   }
@@ -470,18 +511,19 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
       if (o.id < 0 || o.id >= P) continue;
       const int l = data.labels[o.id];
       if (options.rotation_only) {
-        std::vector<double*> rblocks{motion[k].data(), &beta, ref[o.id].data()};
+        std::vector<double*> rblocks{motion[k].data(), &beta, refBlock(o.id)};
         if (use_camera) rblocks.push_back(camera.data());
-        problem.AddResidualBlock(new RotationObservationCost(start.R[k], o.uv, data.sigma_uv, use_camera), loss, rblocks);
+        problem.AddResidualBlock(new RotationObservationCost(start.R[k], o.uv, data.sigma_uv, use_camera, slot[o.id]), loss,
+                                 rblocks);
         ++res.residuals;
         continue;
       }
       std::vector<double*> blocks{motion[k].data(), &beta, N[l].data()};
-      if (options.estimate_references) blocks.push_back(ref[o.id].data());
+      if (options.estimate_references) blocks.push_back(refBlock(o.id));
       if (use_camera) blocks.push_back(camera.data());
       problem.AddResidualBlock(
           new ObservationCost(start.R[k], o.uv, data.sigma_uv, options.estimate_references ? nullptr : &start.ref[o.id], use_camera,
-                              &motion_cache[k], &point_cache[o.id]),
+                              &motion_cache[k], &point_cache[o.id], slot[o.id]),
           loss, blocks);
       ++res.residuals;
     }

@@ -46,6 +46,10 @@ struct PlaneBatchOptions {
   /// references, beta, planes, camera). Fast when there are many frames and a few hundred points
   /// (the refinement); false: Ceres' own SPARSE_SCHUR ordering (the experiments).
   bool eliminate_motions_first = false;
+  /// With eliminate_motions_first: the reference positions of this many consecutive points form
+  /// one parameter block (the same problem and optimum; fewer, larger cells in Ceres' Schur
+  /// elimination: docs/performance.md, "The refinement"). 1: a block per point.
+  int reference_group = 4;
   /// The degenerate alternative for model selection: every frame a pure rotation about the
   /// centre of projection (planeBatchRotationResidual); translations and planes are not
   /// parameters (the result keeps them as started).
