@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <random>
 
+#include "rsfm/batch/plane_batch.hpp"
 #include "rsfm/filters/recursive_filter.hpp"
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/models/point_model.hpp"
@@ -163,6 +164,54 @@ TEST(Allocations, WarmPointFilterStepAllocatesNothing) {
   });
   EXPECT_EQ(applied, 15);
   EXPECT_EQ(a, 0) << "heap allocations in 15 warm steps";
+}
+
+TEST(Allocations, TheBatchBoundAllocatesNothingPerObservation) {
+  // The refinement's bound (planeBatchBound) with 40 and with 80 points over the same 12 frames:
+  // its heap allocations are per problem and per frame (the frame's blocks), so 440 more
+  // observations add at most the few reallocations of vectors that grow with the frame's width.
+  // Checked with the default options and with the refinement's (the motions' covariance, the
+  // track-clustered and spatial sds, which pass over the observations once more).
+  auto count = [](int n, const PlaneBatchBoundOptions& o) {
+    const int F = 12;
+    const PlaneScene s = planeScene(n, F);
+    PlaneBatchData data;
+    data.frames.emplace_back();
+    for (int i = 0; i < n; ++i) data.frames[0].push_back({i, s.ref[i]});
+    for (const auto& f : s.frames) data.frames.push_back(f);
+    data.labels.assign(n, 0);
+    data.sigma_uv = 1e-3;
+    PlaneBatchState at;  // the scene's truth (planeScene's state, as the batch's)
+    at.R.push_back(Eigen::Matrix3d::Identity());
+    at.t.push_back(Eigen::Vector3d::Zero());
+    for (int k = 1; k <= F; ++k) {
+      at.R.push_back(Eigen::AngleAxisd(0.003 * k, Eigen::Vector3d(0.2, 1.0, 0.1).normalized()).toRotationMatrix());
+      at.t.emplace_back(0.004 * k, -0.002 * k, 0.001 * k * 0.8);
+    }
+    at.beta = 0.8;
+    at.N = {Eigen::Vector3d(0.3, -0.2, 0.5)};
+    at.ref = s.ref;
+    PlaneBatchBound b;
+    const long a = allocationsOf([&] { b = planeBatchBound(data, at, o); });
+    EXPECT_TRUE(b.ok) << b.message;
+    EXPECT_EQ(b.null_dim, 0);
+    long observations = 0;
+    for (const auto& f : data.frames) observations += static_cast<long>(f.size());
+    return std::make_pair(a, observations);
+  };
+  PlaneBatchBoundOptions refinement;
+  refinement.motion_covariance = true;
+  refinement.skip_undetermined_frames = true;
+  refinement.track_clustered = true;
+  refinement.spatial_grid = 4;
+  for (const PlaneBatchBoundOptions& o : {PlaneBatchBoundOptions{}, refinement}) {
+    const auto [a40, obs40] = count(40, o);
+    const auto [a80, obs80] = count(80, o);
+    EXPECT_GE(obs80 - obs40, 400);
+    EXPECT_GT(a40, 0);  // the counter sees the bound's per-problem allocations
+    EXPECT_LE(a80 - a40, 12) << a40 << " allocations with 40 points (" << obs40 << " observations), " << a80
+                             << " with 80 (" << obs80 << ")";
+  }
 }
 
 }  // namespace

@@ -96,7 +96,8 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     int idx[7];
     Eigen::Matrix<double, 2, 7> J;
     const int q = referenceRow(o, &r, idx, &J);
-    const Eigen::MatrixXd JtJ = J.leftCols(q).transpose() * J.leftCols(q);
+    // At most 7 x 7: fixed storage, no heap allocation per observation.
+    const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, 7, 7> JtJ = J.leftCols(q).transpose() * J.leftCols(q);
     for (int a = 0; a < q; ++a)
       for (int b = 0; b < q; ++b) S(idx[a], idx[b]) += JtJ(a, b);
   }
@@ -191,8 +192,9 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       }
       for (int a = 0; a < q; ++a) idx[a] = local(idx[a]);
       Hmm += Jm.transpose() * Jm;
-      const Eigen::MatrixXd JmtJc = Jm.transpose() * Jc.leftCols(q);
-      const Eigen::MatrixXd JctJc = Jc.leftCols(q).transpose() * Jc.leftCols(q);
+      // At most 6 x 10 and 10 x 10: fixed storage, no heap allocation per observation.
+      const Eigen::Matrix<double, 6, Eigen::Dynamic, 0, 6, 10> JmtJc = Jm.transpose() * Jc.leftCols(q);
+      const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, 10, 10> JctJc = Jc.leftCols(q).transpose() * Jc.leftCols(q);
       for (int a = 0; a < q; ++a) {
         Hmc.col(idx[a]) += JmtJc.col(a);
         for (int b = 0; b < q; ++b) Hcc(idx[a], idx[b]) += JctJc(a, b);
@@ -277,7 +279,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
         if (!frameRow(k, o, &r, &Jm, idx, &Jc, &nq)) continue;  // cannot happen: the first pass projected it
         const Eigen::Matrix<double, 10, 1> v = Jc.transpose() * r;
         for (int a = 0; a < nq; ++a) g.col(o.id) += A.col(idx[a]) * v[a];
-        g.col(o.id) -= W * (Jm.transpose() * r);
+        g.col(o.id).noalias() -= W * (Jm.transpose() * r);
       }
     }
     int tracks = 0;
