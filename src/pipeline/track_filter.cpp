@@ -533,8 +533,8 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
                                   " tracks in the reference frame, the plane model needs at least 5");
   if (o.passes < 1) throw std::invalid_argument("estimate: passes must be >= 1");
   double beta_start = beta0;
-  const double nz0 = beta0 / o.depth0;  // the gauge's N_Z (startPlanes)
   std::vector<Eigen::Vector3d> N_start = startPlanes(o, beta0, m);
+  const double nz0 = N_start[0].z();  // the scale gauge's N_Z (startPlanes)
   ResidualSeries series;
   for (int pass = 1; pass <= o.passes; ++pass) {
     res.frames.clear();
