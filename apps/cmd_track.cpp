@@ -29,6 +29,9 @@ void addTrackerOptions(CLI::App* app, TrackCli* t) {
   app->add_flag("!--no-fb-check", o.fb_check, "no forward-backward check (faster; a track that slips at a fast step carries on)");
   app->add_option("--anchor-every", o.anchor_every, "align each track to its first appearance every this many frames")->capture_default_str();
   app->add_flag("!--no-anchor", o.anchor, "frame-to-frame tracking only (no re-alignment to each track's first appearance)");
+  app->add_flag("--exposure-compensation", o.exposure_compensation,
+                "bring each frame's predecessor to its brightness before Lucas-Kanade (flicker, auto-exposure steps; "
+                "off by default: a large motion can read as an exposure change, docs/tracks.md)");
 }
 
 void addPatchTrackerOptions(CLI::App* app, TrackCli* t) {

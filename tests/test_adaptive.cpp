@@ -3,6 +3,8 @@
 //  - the tracker follows 5- and 10-degree steps (prediction from each track's own motion, a
 //    pyramid as deep as the prediction errors need, the forward-backward check); the fixed
 //    shallow pyramid without the check does not;
+//  - the tracker follows through exposure changes (the last frame brought to each frame's
+//    brightness), which it measures without mistaking motion for them;
 //  - the filter takes a frame whose observations its gate rejects again with more process noise
 //    (a model mismatch) instead of stopping;
 //  - the motion's process noise comes from the motion the start measured and follows the motion the
@@ -20,6 +22,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <random>
 #include <opencv2/imgproc.hpp>
 
@@ -42,7 +45,8 @@ struct TrackQuality {
 
 /// Tracks a regime's rendered frames and compares each track alive in the last frame with the
 /// truth's transfer of its first position (Scene::transfer).
-TrackQuality trackRegime(const std::string& name, const vision::TrackerOptions& to) {
+TrackQuality trackRegime(const std::string& name, const vision::TrackerOptions& to,
+                         const std::function<cv::Mat(const cv::Mat&, int)>& exposure = {}) {
   const render::Regime* r = render::builtinRegimeSuite().find(name);
   EXPECT_NE(r, nullptr);
   if (!r) return {};
@@ -52,7 +56,7 @@ TrackQuality trackRegime(const std::string& name, const vision::TrackerOptions& 
   std::vector<cv::Mat> labels(F);
   for (int k = 0; k < F; ++k) {
     const cv::Mat img = scene.render(k, &labels[k]);
-    tracker.process(img);
+    tracker.process(exposure ? exposure(img, k) : img);
   }
   const Tracks t = tracker.tracks();
   const auto spans = trackSpans(t);
@@ -84,6 +88,57 @@ TEST(Adaptive, TrackerFollowsFiveAndTenDegreeSteps) {
     EXPECT_GE(q.within_1px, 0.85) << name;
     EXPECT_LT(old.within_1px, 0.6) << name;  // what the adaptation fixes
   }
+}
+
+TEST(Adaptive, TrackerFollowsThroughExposureChanges) {
+  // Auto-exposure or flicker: every frame's grey levels scaled by 1 + 0.15 sin(2.5 k) and shifted
+  // by 12 sin(1.7 k) levels (a change of up to 30 % and 24 levels between consecutive frames).
+  // With the last frame brought to each frame's brightness (TrackerOptions::exposure_compensation)
+  // the tracks must last as without the changes; without it, Lucas-Kanade's forward-backward
+  // check ends a third of them.
+  const auto flicker = [](const cv::Mat& img, int k) {
+    cv::Mat out;
+    img.convertTo(out, -1, 1.0 + 0.15 * std::sin(2.5 * k), 12.0 * std::sin(1.7 * k));
+    return out;
+  };
+  vision::TrackerOptions on;
+  on.exposure_compensation = true;  // off by default (TrackerOptions::exposure_compensation)
+  const TrackQuality steady = trackRegime("box-1deg", on);
+  const TrackQuality q = trackRegime("box-1deg", on, flicker);
+  const TrackQuality old = trackRegime("box-1deg", {}, flicker);
+  std::printf("box-1deg, last frame: %d tracks from earlier frames, %.0f %% within 1 px; with flicker %d, %.0f %%; "
+              "uncompensated %d, %.0f %%\n",
+              steady.compared, 100 * steady.within_1px, q.compared, 100 * q.within_1px, old.compared, 100 * old.within_1px);
+  // Measured: 311 tracks, 89 % within 1 px; with flicker 294, 89 %; uncompensated 205.
+  EXPECT_GE(q.compared, steady.compared * 9 / 10);
+  EXPECT_GE(q.within_1px, steady.within_1px - 0.03);
+  EXPECT_LT(old.compared, steady.compared * 3 / 4);  // what the compensation fixes
+}
+
+TEST(Adaptive, TheExposureChangeIsMeasuredAndAModerateMotionIsNotMistakenForIt) {
+  // photometricChange at the same pixels of consecutive box-orbit frames (~1 deg of orbit apart):
+  // no change found; a gain and an offset applied on top are recovered. (A large motion, 10 deg
+  // per frame, reads as 2-5 levels: why the compensation is off by default, docs/tracks.md.)
+  const render::Regime* r = render::builtinRegimeSuite().find("box-orbit");
+  ASSERT_NE(r, nullptr);
+  const render::Scene scene(r->options);
+  cv::Mat a, b;
+  cv::cvtColor(scene.render(40), a, cv::COLOR_BGR2GRAY);
+  cv::cvtColor(scene.render(41), b, cv::COLOR_BGR2GRAY);  // a frame of the orbit later: motion alone
+  const vision::Photometric none = vision::photometricChange(a, b);
+  std::printf("motion alone: gain %.4f offset %.2f\n", none.gain, none.offset);
+  EXPECT_FALSE(none.changes());
+  EXPECT_FALSE(vision::photometricChange(a, a).changes());
+  for (const auto& [g, o] : {std::pair{1.2, -10.0}, std::pair{0.8, 15.0}, std::pair{1.0, 3.0}}) {
+    cv::Mat c;
+    b.convertTo(c, -1, g, o);
+    const vision::Photometric m = vision::photometricChange(a, c);
+    std::printf("motion and b = %.2f a %+.1f: gain %.4f offset %.2f\n", g, o, m.gain, m.offset);
+    EXPECT_TRUE(m.changes());
+    EXPECT_NEAR(m.gain, g, 0.02);
+    EXPECT_NEAR(m.offset, o, 2.0);
+  }
+  EXPECT_FALSE(vision::photometricChange(a, cv::Mat()).changes());
 }
 
 TEST(Adaptive, FilterTakesAMismatchedFrameAgainInsteadOfStopping) {

@@ -4,6 +4,7 @@
 #include "rsfm/vision/klt_tracker.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cassert>
 #include <cmath>
 #include <limits>
@@ -161,6 +162,60 @@ int KltTracker::levelsNeeded() const {
   return L;
 }
 
+Photometric photometricChange(const cv::Mat& a, const cv::Mat& b) {
+  Photometric out;
+  if (a.empty() || a.size() != b.size() || a.type() != CV_8UC1 || b.type() != CV_8UC1) return out;
+  // Every 4th pixel of every 4th row, binned by its mean grey level in a and b (16 bins of 16
+  // levels): a histogram of the 511 possible differences b - a per bin. Binned by a alone, the
+  // motion would bias the medians (a pixel bright in a meets, after the motion, an average one
+  // in b: regression to the mean, a false gain below 1); a and b enter the mean alike.
+  constexpr int kBins = 16;
+  std::array<std::array<int, 511>, kBins> hist{};  // 32 kB on the stack: no allocation per frame
+  std::array<int, kBins> count{};
+  std::array<double, kBins> level{};
+  int n = 0;
+  for (int y = 0; y < a.rows; y += 4) {
+    const uchar* pa = a.ptr<uchar>(y);
+    const uchar* pb = b.ptr<uchar>(y);
+    for (int x = 0; x < a.cols; x += 4, ++n) {
+      const int k = (pa[x] + pb[x]) >> 5;
+      ++hist[static_cast<std::size_t>(k)][static_cast<std::size_t>(255 + pb[x] - pa[x])];
+      ++count[static_cast<std::size_t>(k)];
+      level[static_cast<std::size_t>(k)] += 0.5 * (pa[x] + pb[x]);
+    }
+  }
+  // Each bin's median difference (bins with at least 2 % of the samples), then the line
+  // diff = (gain - 1) level + offset through them, weighted by their counts.
+  double sw = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
+  for (int k = 1; k + 1 < kBins; ++k) {  // the end bins left out: clipping at 0 and 255 biases their medians
+    const int c = count[static_cast<std::size_t>(k)];
+    if (c < std::max(20, n / 50)) continue;
+    int cum = 0, med = 0;
+    for (int d = 0; d < 511; ++d) {
+      cum += hist[static_cast<std::size_t>(k)][static_cast<std::size_t>(d)];
+      if (2 * cum > c) {
+        med = d - 255;
+        break;
+      }
+    }
+    const double x = level[static_cast<std::size_t>(k)] / c, w = c;
+    sw += w;
+    sx += w * x;
+    sy += w * med;
+    sxx += w * x * x;
+    sxy += w * x * med;
+  }
+  if (!(sw > 0)) return out;
+  const double mx = sx / sw, my = sy / sw, vx = sxx / sw - mx * mx;
+  const double slope = vx > 100.0 ? (sxy / sw - mx * my) / vx : 0.0;  // a spread of grey levels to fit a gain on
+  // b = g a + o against the mean level m = (a + b) / 2: b - a = s m + c with s = 2 (g - 1) / (1 + g)
+  // and c = 2 o / (1 + g).
+  if (!(std::abs(slope) < 1.0)) return out;  // a gain beyond 3 or under 1/3: not an exposure change
+  out.gain = (2.0 + slope) / (2.0 - slope);
+  out.offset = (my - slope * mx) * (1.0 + out.gain) / 2.0;
+  return out;
+}
+
 void KltTracker::process(const cv::Mat& frame) {
   const cv::Mat gray = toGray8(frame, &gray_);
   const cv::Size win(o_.window_px, o_.window_px);
@@ -192,11 +247,22 @@ void KltTracker::process(const cv::Mat& frame) {
     std::vector<uchar> st, stb;
     std::vector<float> err, errb;
     const cv::TermCriteria term(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 20, 0.03);
-    cv::calcOpticalFlowPyrLK(prev_pyr_, pyr, p0, p1, st, err, win, levels, term, cv::OPTFLOW_USE_INITIAL_FLOW,
+    // A change of exposure between the frames (auto-exposure, flicker) breaks Lucas-Kanade's
+    // brightness constancy: the last frame is brightened by the median difference of the two
+    // frames at the same pixels (robust to the motion, which changes a minority of them), as
+    // a gain and an offset (photometricChange).
+    last_photometric_ = o_.exposure_compensation ? photometricChange(prev_gray_, gray) : Photometric{};
+    const std::vector<cv::Mat>* prev = &prev_pyr_;
+    if (last_photometric_.changes()) {
+      prev_gray_.convertTo(shifted_, CV_8U, last_photometric_.gain, last_photometric_.offset);
+      cv::buildOpticalFlowPyramid(shifted_, shifted_pyr_, win, built);
+      prev = &shifted_pyr_;
+    }
+    cv::calcOpticalFlowPyrLK(*prev, pyr, p0, p1, st, err, win, levels, term, cv::OPTFLOW_USE_INITIAL_FLOW,
                              o_.min_eig);
     pb = p0;
     if (o_.fb_check) {
-      cv::calcOpticalFlowPyrLK(pyr, prev_pyr_, p1, pb, stb, errb, win, levels, term, cv::OPTFLOW_USE_INITIAL_FLOW,
+      cv::calcOpticalFlowPyrLK(pyr, *prev, p1, pb, stb, errb, win, levels, term, cv::OPTFLOW_USE_INITIAL_FLOW,
                                o_.min_eig);
     } else {
       stb = st;
@@ -248,6 +314,7 @@ void KltTracker::process(const cv::Mat& frame) {
     }
   }
   std::swap(prev_pyr_, next_pyr_);
+  gray.copyTo(prev_gray_);
 }
 
 Tracks KltTracker::tracks(int first_frame) const {
