@@ -314,7 +314,7 @@ void KltTracker::process(const cv::Mat& frame) {
     }
   }
   std::swap(prev_pyr_, next_pyr_);
-  gray.copyTo(prev_gray_);
+  if (o_.exposure_compensation) gray.copyTo(prev_gray_);  // photometricChange's last frame
 }
 
 Tracks KltTracker::tracks(int first_frame) const {
