@@ -248,9 +248,9 @@ void KltTracker::process(const cv::Mat& frame) {
     std::vector<float> err, errb;
     const cv::TermCriteria term(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 20, 0.03);
     // A change of exposure between the frames (auto-exposure, flicker) breaks Lucas-Kanade's
-    // brightness constancy: the last frame is brightened by the median difference of the two
-    // frames at the same pixels (robust to the motion, which changes a minority of them), as
-    // a gain and an offset (photometricChange).
+    // brightness constancy: with TrackerOptions::exposure_compensation the last frame is brought
+    // to this one's brightness, a gain and an offset from the two frames' median differences at
+    // the same pixels (photometricChange).
     last_photometric_ = o_.exposure_compensation ? photometricChange(prev_gray_, gray) : Photometric{};
     const std::vector<cv::Mat>* prev = &prev_pyr_;
     if (last_photometric_.changes()) {

@@ -19,10 +19,12 @@
 namespace rsfm::vision {
 
 /// The exposure change from grey frame a to grey frame b (same size, CV_8UC1): b ~ gain a +
-/// offset. Every 4th pixel of every 4th row is binned by its mean grey level in a and b; each bin's median
-/// difference b - a (a change of exposure moves every pixel, the motion between two frames a
-/// minority of them, at edges) and a line through those medians weighted by the bins' counts
-/// (the darkest and brightest bins left out: clipping biases them; no gain when a's grey levels have a variance under 100). Unit gain, zero offset when the
+/// offset. Every 4th pixel of every 4th row is binned by its mean grey level in a and b; each
+/// bin's median difference b - a (a change of exposure moves every pixel alike; a small motion
+/// changes pixels both ways, mostly at edges) and a line through those medians weighted by the
+/// bins' counts (the darkest and brightest bins left out: clipping biases them; no gain when the
+/// mean levels have a variance under 100). A large motion (most pixels changed) can read as a
+/// change of a few levels (docs/tracks.md, "Exposure changes"). Unit gain, zero offset when the
 /// sizes or types differ.
 struct Photometric {
   double gain = 1.0, offset = 0.0;
