@@ -251,10 +251,13 @@ void KltTracker::process(const cv::Mat& frame) {
     // brightness constancy: with TrackerOptions::exposure_compensation the last frame is brought
     // to this one's brightness, a gain and an offset from the two frames' median differences at
     // the same pixels (photometricChange).
-    last_photometric_ = o_.exposure_compensation ? photometricChange(prev_gray_, gray) : Photometric{};
+    // The last frame is its pyramid's level 0 (buildOpticalFlowPyramid with derivatives:
+    // images at even indices).
+    const cv::Mat& last = prev_pyr_[0];
+    const Photometric change = o_.exposure_compensation ? photometricChange(last, gray) : Photometric{};
     const std::vector<cv::Mat>* prev = &prev_pyr_;
-    if (last_photometric_.changes()) {
-      prev_gray_.convertTo(shifted_, CV_8U, last_photometric_.gain, last_photometric_.offset);
+    if (change.changes()) {
+      last.convertTo(shifted_, CV_8U, change.gain, change.offset);
       cv::buildOpticalFlowPyramid(shifted_, shifted_pyr_, win, built);
       prev = &shifted_pyr_;
     }
@@ -314,7 +317,6 @@ void KltTracker::process(const cv::Mat& frame) {
     }
   }
   std::swap(prev_pyr_, next_pyr_);
-  if (o_.exposure_compensation) gray.copyTo(prev_gray_);  // photometricChange's last frame
 }
 
 Tracks KltTracker::tracks(int first_frame) const {

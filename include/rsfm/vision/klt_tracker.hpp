@@ -114,10 +114,8 @@ class KltTracker {
   TrackerOptions o_;
   std::vector<cv::Mat> prev_pyr_, next_pyr_;  // the last frame's pyramid; the buffers for the next
   cv::Mat gray_;                               // the frame in 8-bit grey (buffer reused)
-  cv::Mat prev_gray_;                          // the last frame in 8-bit grey (its pyramid is prev_pyr_)
-  cv::Mat shifted_;                            // prev_gray_ brightened to this frame's (buffer)
+  cv::Mat shifted_;                            // the last frame brought to this frame's brightness (buffer)
   std::vector<cv::Mat> shifted_pyr_;           // its pyramid (buffers)
-  Photometric last_photometric_;               // the last step's exposure change
   std::vector<TrackPoint> cur_;
   /// Per live track (cur_'s order): its last frame-to-frame displacement (NaN: none yet).
   std::vector<Eigen::Vector2d> vel_;
