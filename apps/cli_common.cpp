@@ -71,6 +71,14 @@ void sayLeadingFramesLeftOut(bool quiet, int range_first, int first, const char*
                features, tracks, first);
 }
 
+void sayExposureCompensated(bool quiet, long changed, long steps) {
+  if (changed > 0 && !quiet)
+    fmt::print(stderr,
+               "track: the exposure changed by a grey level or more in {} of {} steps; they were tracked with the "
+               "last frame brought to the new brightness\n",
+               changed, steps);
+}
+
 void warnFigures(const report::Figures& f) {
   if (const std::string w = f.warning(); !w.empty()) fmt::print(stderr, "rsfm: warning: {}\n", w);
 }

@@ -33,6 +33,10 @@ std::function<void(int, int)> progressReporter(std::string name, std::string uni
 /// `features` names what was missing ("corners", "patches"), `tracks` what starts at `first`.
 void sayLeadingFramesLeftOut(bool quiet, int range_first, int first, const char* features, const char* tracks);
 
+/// `rsfm track` / `run`: when the tracker took `changed` of its `steps` again for a change of
+/// exposure (TrackerOptions::exposure_compensation), says so on stderr unless `quiet`.
+void sayExposureCompensated(bool quiet, long changed, long steps);
+
 /// A registered command: the CLI11 subcommand and what runs when it was parsed.
 struct Command {
   CLI::App* app = nullptr;

@@ -441,7 +441,7 @@ PatchRunReport::PatchRunReport(const PatchTracks& tracks, const PatchEstimateRes
 
 /// The pipeline (pipeline/estimate.hpp) + report (+ overlay when `overlay_input` is set). Returns the exit code.
 int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOverlay& overlay, double t_start,
-                      bool write_tracks, double tracking_seconds) {
+                      bool write_tracks, const RunTracking* tracking) {
   EstimateResult r;
   std::vector<std::string> warnings;
   try {
@@ -458,7 +458,10 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
   if (!res.ok()) return fail(kRuntimeFailure, "the filter stopped at " + res.stopped + " (no outputs written)");
   EstimateRunReport run(tracks, r, e);
   report::EstimateReport& rep = run.rep;
-  if (tracking_seconds >= 0) rep.extra["stage_seconds"]["tracking"] = tracking_seconds;
+  if (tracking) {
+    rep.extra["stage_seconds"]["tracking"] = tracking->seconds;
+    rep.extra["tracking"] = {{"steps", tracking->steps}, {"exposure_compensated_steps", tracking->exposure_compensated_steps}};
+  }
   nlohmann::json summary;
   report::Figures fig;
   if (int rc = guarded([&] {

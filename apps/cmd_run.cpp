@@ -48,16 +48,18 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
         return finish(patchEstimateAndReport(pt, e, overlay, t0, true));
       }
       Tracks tracks;
-      if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
+      vision::TrackingStats stats;
+      if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress, &stats); })) return rc;
       sayLeadingFramesLeftOut(c->e.quiet, c->t.range.first, tracks.first_frame, "corners", "tracks");
-      const double tracking_seconds = steadySeconds() - t0;
+      sayExposureCompensated(c->e.quiet, stats.exposure_changes, stats.steps);
+      const RunTracking tracking{steadySeconds() - t0, stats.steps, stats.exposure_changes};
       // The tracks are part of the report.
       TrackOverlay overlay;
       if (c->overlay)
         overlay = [&](const EstimateResult& r, const std::filesystem::path& tmp) {
           return vision::writeOverlay(c->input, c->t.range, tracks, r.labels(), r.main(), tmp);
         };
-      return finish(estimateAndReport(tracks, e, overlay, t0, true, tracking_seconds));
+      return finish(estimateAndReport(tracks, e, overlay, t0, true, &tracking));
     }});
   }
 }

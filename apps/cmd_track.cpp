@@ -29,9 +29,9 @@ void addTrackerOptions(CLI::App* app, TrackCli* t) {
   app->add_flag("!--no-fb-check", o.fb_check, "no forward-backward check (faster; a track that slips at a fast step carries on)");
   app->add_option("--anchor-every", o.anchor_every, "align each track to its first appearance every this many frames")->capture_default_str();
   app->add_flag("!--no-anchor", o.anchor, "frame-to-frame tracking only (no re-alignment to each track's first appearance)");
-  app->add_flag("--exposure-compensation", o.exposure_compensation,
-                "bring each frame's predecessor to its brightness before Lucas-Kanade (flicker, auto-exposure steps; "
-                "off by default: a large motion can read as an exposure change, docs/tracks.md)");
+  app->add_flag("!--no-exposure-compensation", o.exposure_compensation,
+                "no exposure compensation (by default a step is repeated with the last frame brought to the next one's "
+                "brightness when the tracks show a change of a grey level or more: auto-exposure, flicker; docs/tracks.md)");
 }
 
 void addPatchTrackerOptions(CLI::App* app, TrackCli* t) {
@@ -110,8 +110,10 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
       return 0;
     }
     Tracks tracks;
-    if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress); })) return rc;
+    vision::TrackingStats stats;
+    if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress, &stats); })) return rc;
     sayLeadingFramesLeftOut(c->quiet, c->t.range.first, tracks.first_frame, "corners", "tracks");
+    sayExposureCompensated(c->quiet, stats.exposure_changes, stats.steps);
     if (int rc = guarded([&] {
           io::writeAllOrNothing({{out / "tracks.csv", io::tracksToString(tracks)}});
           od.commit();

@@ -67,9 +67,16 @@ using TrackOverlay = std::function<vision::OverlayInfo(const EstimateResult&, co
 using PatchOverlay = std::function<vision::OverlayInfo(const PatchRunResult&, const std::filesystem::path&)>;
 
 /// The pipeline (pipeline/estimate.hpp) + report (+ the overlay when given). Returns the exit code.
-/// `tracking_seconds` (>= 0: `rsfm run`'s tracking) joins summary.json's `stage_seconds`.
+/// What `rsfm run`'s tracking adds to summary.json: its seconds (`stage_seconds`) and its
+/// `tracking` object (docs/outputs.md).
+struct RunTracking {
+  double seconds = 0;
+  long steps = 0;                       ///< frame-to-frame steps tracked
+  long exposure_compensated_steps = 0;  ///< of them, tracked again for a change of exposure
+};
+/// `tracking`: `rsfm run`'s tracking (null: the tracks came from a file).
 int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOverlay& overlay, double t_start,
-                      bool write_tracks, double tracking_seconds = -1);
+                      bool write_tracks, const RunTracking* tracking = nullptr);
 /// The patch pipeline + report (+ the overlay when given). Returns the exit code.
 int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, const PatchOverlay& overlay,
                            double t_start, bool write_patches);

@@ -41,6 +41,7 @@ namespace {
 struct TrackQuality {
   int compared = 0;
   double within_1px = 0;  ///< fraction of the last frame's tracks within 1 px of the truth
+  long exposure_changes = 0;  ///< steps repeated for an exposure change (KltTracker::exposureChanges)
 };
 
 /// Tracks a regime's rendered frames and compares each track alive in the last frame with the
@@ -71,6 +72,7 @@ TrackQuality trackRegime(const std::string& name, const vision::TrackerOptions& 
     good += (*x - p.px).norm() <= 1.0;
   }
   q.within_1px = q.compared ? static_cast<double>(good) / q.compared : 0.0;
+  q.exposure_changes = tracker.exposureChanges();
   return q;
 }
 
@@ -82,9 +84,11 @@ TEST(Adaptive, TrackerFollowsFiveAndTenDegreeSteps) {
     fixed.fb_check = false;
     fixed.anchor_every = 2;
     const TrackQuality old = trackRegime(name, fixed);
-    std::printf("%s: %d tracks in the last frame, %.0f %% within 1 px (fixed shallow pyramid: %d, %.0f %%)\n", name,
-                q.compared, 100 * q.within_1px, old.compared, 100 * old.within_1px);
+    std::printf("%s: %d tracks in the last frame, %.0f %% within 1 px (fixed shallow pyramid: %d, %.0f %%); %ld steps "
+                "taken for an exposure change\n",
+                name, q.compared, 100 * q.within_1px, old.compared, 100 * old.within_1px, q.exposure_changes);
     EXPECT_GE(q.compared, 50) << name;
+    EXPECT_EQ(q.exposure_changes, 0) << name;  // a fast motion is not read as a change of exposure
     EXPECT_GE(q.within_1px, 0.85) << name;
     EXPECT_LT(old.within_1px, 0.6) << name;  // what the adaptation fixes
   }
@@ -93,52 +97,77 @@ TEST(Adaptive, TrackerFollowsFiveAndTenDegreeSteps) {
 TEST(Adaptive, TrackerFollowsThroughExposureChanges) {
   // Auto-exposure or flicker: every frame's grey levels scaled by 1 + 0.15 sin(2.5 k) and shifted
   // by 12 sin(1.7 k) levels (a change of up to 30 % and 24 levels between consecutive frames).
-  // With the last frame brought to each frame's brightness (TrackerOptions::exposure_compensation)
-  // the tracks must last as without the changes; without it, Lucas-Kanade's forward-backward
-  // check ends a third of them.
+  // With the default exposure compensation (the last frame brought to each frame's brightness when
+  // the forward step's pairs show a change) the tracks must last as without the changes; without
+  // it, Lucas-Kanade's forward-backward check ends a third of them.
   const auto flicker = [](const cv::Mat& img, int k) {
     cv::Mat out;
     img.convertTo(out, -1, 1.0 + 0.15 * std::sin(2.5 * k), 12.0 * std::sin(1.7 * k));
     return out;
   };
-  vision::TrackerOptions on;
-  on.exposure_compensation = true;  // off by default (TrackerOptions::exposure_compensation)
-  const TrackQuality steady = trackRegime("box-1deg", on);
-  const TrackQuality q = trackRegime("box-1deg", on, flicker);
-  const TrackQuality old = trackRegime("box-1deg", {}, flicker);
-  std::printf("box-1deg, last frame: %d tracks from earlier frames, %.0f %% within 1 px; with flicker %d, %.0f %%; "
-              "uncompensated %d, %.0f %%\n",
-              steady.compared, 100 * steady.within_1px, q.compared, 100 * q.within_1px, old.compared, 100 * old.within_1px);
-  // Measured: 311 tracks, 89 % within 1 px; with flicker 294, 89 %; uncompensated 205.
+  vision::TrackerOptions off;
+  off.exposure_compensation = false;
+  const TrackQuality steady = trackRegime("box-1deg", {});
+  const TrackQuality q = trackRegime("box-1deg", {}, flicker);
+  const TrackQuality old = trackRegime("box-1deg", off, flicker);
+  std::printf("box-1deg, last frame: %d tracks from earlier frames, %.0f %% within 1 px (%ld compensated steps); with "
+              "flicker %d, %.0f %% (%ld); uncompensated %d, %.0f %%\n",
+              steady.compared, 100 * steady.within_1px, steady.exposure_changes, q.compared, 100 * q.within_1px,
+              q.exposure_changes, old.compared, 100 * old.within_1px);
+  EXPECT_EQ(steady.exposure_changes, 0);  // no change, no compensation: the tracks are those without it
+  EXPECT_GE(q.exposure_changes, 40);      // of 59 steps; the rest change a level by less than one
   EXPECT_GE(q.compared, steady.compared * 9 / 10);
   EXPECT_GE(q.within_1px, steady.within_1px - 0.03);
   EXPECT_LT(old.compared, steady.compared * 3 / 4);  // what the compensation fixes
 }
 
-TEST(Adaptive, TheExposureChangeIsMeasuredAndAModerateMotionIsNotMistakenForIt) {
-  // photometricChange at the same pixels of consecutive box-orbit frames (~1 deg of orbit apart):
-  // no change found; a gain and an offset applied on top are recovered. (A large motion, 10 deg
-  // per frame, reads as 2-5 levels: why the compensation is off by default, docs/tracks.md.)
-  const render::Regime* r = render::builtinRegimeSuite().find("box-orbit");
-  ASSERT_NE(r, nullptr);
-  const render::Scene scene(r->options);
-  cv::Mat a, b;
-  cv::cvtColor(scene.render(40), a, cv::COLOR_BGR2GRAY);
-  cv::cvtColor(scene.render(41), b, cv::COLOR_BGR2GRAY);  // a frame of the orbit later: motion alone
-  const vision::Photometric none = vision::photometricChange(a, b);
-  std::printf("motion alone: gain %.4f offset %.2f\n", none.gain, none.offset);
-  EXPECT_FALSE(none.changes());
-  EXPECT_FALSE(vision::photometricChange(a, a).changes());
-  for (const auto& [g, o] : {std::pair{1.2, -10.0}, std::pair{0.8, 15.0}, std::pair{1.0, 3.0}}) {
+TEST(Adaptive, TheExposureChangeIsMeasuredAtTrackedPointsAndMotionIsNotMistakenForIt) {
+  // photometricChangeAt at corners of a rendered frame and where the truth puts them in the next
+  // frame, read on pyramid level 2 as the tracker does: no change found from the motion alone,
+  // neither at 1 deg of orbit (box-orbit) nor at 10 deg per frame (box-short-10deg, where the same
+  // pixels of the two frames read as a change of 2-5 levels); a gain and an offset applied on
+  // top are recovered.
+  for (const auto& [name, k] : {std::pair{"box-orbit", 40}, std::pair{"box-short-10deg", 3}}) {
+    const render::Regime* r = render::builtinRegimeSuite().find(name);
+    ASSERT_NE(r, nullptr);
+    const render::Scene scene(r->options);
+    cv::Mat a, b, la;
+    cv::cvtColor(scene.render(k, &la), a, cv::COLOR_BGR2GRAY);
+    cv::cvtColor(scene.render(k + 1), b, cv::COLOR_BGR2GRAY);
+    std::vector<cv::Point2f> corners, pa, pb;
+    cv::goodFeaturesToTrack(a, corners, 300, 0.01, 8);
+    for (const cv::Point2f& c : corners) {
+      const auto x = scene.transfer(Eigen::Vector2d(c.x, c.y), k, k + 1, la);
+      if (!x) continue;
+      pa.push_back(c);
+      pb.emplace_back(static_cast<float>(x->x()), static_cast<float>(x->y()));
+    }
+    ASSERT_GE(pa.size(), 100u) << name;
+    const auto level2 = [](const cv::Mat& img) {
+      std::vector<cv::Mat> pyr;
+      cv::buildPyramid(img, pyr, 2);
+      return pyr[2];
+    };
+    const vision::Photometric none = vision::photometricChangeAt(level2(a), level2(b), pa, pb, {}, 0.25);
+    std::printf("%s, %zu pairs, motion alone: gain %.4f offset %.2f\n", name, pa.size(), none.gain, none.offset);
+    EXPECT_FALSE(none.changes()) << name;
+    EXPECT_FALSE(vision::photometricChangeAt(level2(a), level2(a), pa, pa, {}, 0.25).changes()) << name;
+    for (const auto& [g, o] : {std::pair{1.2, -10.0}, std::pair{0.8, 15.0}, std::pair{1.0, 3.0}}) {
+      cv::Mat c;
+      b.convertTo(c, -1, g, o);
+      const vision::Photometric m = vision::photometricChangeAt(level2(a), level2(c), pa, pb, {}, 0.25);
+      std::printf("%s, motion and b = %.2f a %+.1f: gain %.4f offset %.2f\n", name, g, o, m.gain, m.offset);
+      EXPECT_TRUE(m.changes()) << name;
+      EXPECT_NEAR(m.gain, g, 0.02) << name;
+      EXPECT_NEAR(m.offset, o, 2.0) << name;
+    }
+    // Pairs marked bad are left out; too few pairs, no change.
+    const std::vector<uchar> none_ok(pa.size(), 0);
     cv::Mat c;
-    b.convertTo(c, -1, g, o);
-    const vision::Photometric m = vision::photometricChange(a, c);
-    std::printf("motion and b = %.2f a %+.1f: gain %.4f offset %.2f\n", g, o, m.gain, m.offset);
-    EXPECT_TRUE(m.changes());
-    EXPECT_NEAR(m.gain, g, 0.02);
-    EXPECT_NEAR(m.offset, o, 2.0);
+    b.convertTo(c, -1, 1.0, 20.0);
+    EXPECT_FALSE(vision::photometricChangeAt(level2(a), level2(c), pa, pb, none_ok, 0.25).changes()) << name;
+    EXPECT_FALSE(vision::photometricChangeAt(level2(a), cv::Mat(), pa, pb, {}, 0.25).changes()) << name;
   }
-  EXPECT_FALSE(vision::photometricChange(a, cv::Mat()).changes());
 }
 
 TEST(Adaptive, FilterTakesAMismatchedFrameAgainInsteadOfStopping) {

@@ -162,57 +162,141 @@ int KltTracker::levelsNeeded() const {
   return L;
 }
 
-Photometric photometricChange(const cv::Mat& a, const cv::Mat& b) {
+namespace {
+
+/// Bilinear grey level of an 8-bit image at (x, y) in its pixels; false outside the image.
+bool bilinear(const cv::Mat& img, float x, float y, float* v) {
+  if (!(x >= 0.f && y >= 0.f && x <= static_cast<float>(img.cols - 1) && y <= static_cast<float>(img.rows - 1))) return false;
+  const int x0 = std::min(static_cast<int>(x), img.cols - 2), y0 = std::min(static_cast<int>(y), img.rows - 2);
+  if (x0 < 0 || y0 < 0) return false;  // a one-pixel-wide image
+  const float fx = x - static_cast<float>(x0), fy = y - static_cast<float>(y0);
+  const uchar* r0 = img.ptr<uchar>(y0);
+  const uchar* r1 = img.ptr<uchar>(y0 + 1);
+  *v = (1.f - fy) * ((1.f - fx) * r0[x0] + fx * r0[x0 + 1]) + fy * ((1.f - fx) * r1[x0] + fx * r1[x0 + 1]);
+  return true;
+}
+
+}  // namespace
+
+// Documented in klt_tracker.hpp.
+Photometric photometricChangeAt(const cv::Mat& a, const cv::Mat& b, std::span<const cv::Point2f> pa,
+                                std::span<const cv::Point2f> pb, std::span<const uchar> ok, double scale,
+                                std::vector<PhotometricSample>* work) {
   Photometric out;
-  if (a.empty() || a.size() != b.size() || a.type() != CV_8UC1 || b.type() != CV_8UC1) return out;
-  // Every 4th pixel of every 4th row, binned by its mean grey level in a and b (16 bins of 16
-  // levels): a histogram of the 511 possible differences b - a per bin. Binned by a alone, the
-  // motion would bias the medians (a pixel bright in a meets, after the motion, an average one
-  // in b: regression to the mean, a false gain below 1); a and b enter the mean alike.
-  constexpr int kBins = 16;
-  std::array<std::array<int, 511>, kBins> hist{};  // 32 kB on the stack: no allocation per frame
-  std::array<int, kBins> count{};
-  std::array<double, kBins> level{};
-  int n = 0;
-  for (int y = 0; y < a.rows; y += 4) {
-    const uchar* pa = a.ptr<uchar>(y);
-    const uchar* pb = b.ptr<uchar>(y);
-    for (int x = 0; x < a.cols; x += 4, ++n) {
-      const int k = (pa[x] + pb[x]) >> 5;
-      ++hist[static_cast<std::size_t>(k)][static_cast<std::size_t>(255 + pb[x] - pa[x])];
-      ++count[static_cast<std::size_t>(k)];
-      level[static_cast<std::size_t>(k)] += 0.5 * (pa[x] + pb[x]);
-    }
+  if (a.empty() || b.empty() || a.type() != CV_8UC1 || b.type() != CV_8UC1 || pa.size() != pb.size() ||
+      (!ok.empty() && ok.size() != pa.size())) {
+    return out;
   }
-  // Each bin's median difference (bins with at least 2 % of the samples), then the line
-  // diff = (gain - 1) level + offset through them, weighted by their counts.
-  double sw = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
+  std::vector<PhotometricSample> local;
+  std::vector<PhotometricSample>& s = work ? *work : local;
+  s.clear();
+  // Each pair's grey levels in a and b, binned by their mean (16 bins of 16 levels): binned by a
+  // alone, a point's noise would bias the medians (a sample bright in a by chance is on average
+  // darker in b: regression to the mean, a false gain below 1); a and b enter the mean alike.
+  constexpr int kBins = 16;
+  std::array<int, kBins> count{};
+  const float f = static_cast<float>(scale);
+  for (std::size_t i = 0; i < pa.size(); ++i) {
+    if (!ok.empty() && !ok[i]) continue;
+    float va = 0, vb = 0;
+    if (!bilinear(a, f * pa[i].x, f * pa[i].y, &va) || !bilinear(b, f * pb[i].x, f * pb[i].y, &vb)) continue;
+    const float m = 0.5f * (va + vb);
+    s.push_back({m, vb - va});
+    ++count[static_cast<std::size_t>(std::clamp(static_cast<int>(m) >> 4, 0, kBins - 1))];
+  }
+  const int n = static_cast<int>(s.size());
+  if (n < 20) return out;  // too few pairs to tell an exposure change from a few bad tracks
+  // Grouped by bin (a counting sort into the buffer's second half), each bin's median difference
+  // (bins with at least max(5, 2 % of the pairs)), then the line diff = (gain - 1) level + offset
+  // through them, weighted by their counts.
+  std::array<int, kBins + 1> start{};
+  for (int k = 0; k < kBins; ++k) start[static_cast<std::size_t>(k + 1)] = start[static_cast<std::size_t>(k)] + count[static_cast<std::size_t>(k)];
+  s.resize(2 * static_cast<std::size_t>(n));
+  std::array<int, kBins> fill = {};
+  for (int i = 0; i < n; ++i) {
+    const int k = std::clamp(static_cast<int>(s[static_cast<std::size_t>(i)].level) >> 4, 0, kBins - 1);
+    s[static_cast<std::size_t>(n + start[static_cast<std::size_t>(k)] + fill[static_cast<std::size_t>(k)]++)] = s[static_cast<std::size_t>(i)];
+  }
+  struct Bin {
+    double x, y, w;  // mean level, median difference, 1 / its variance
+  };
+  std::array<Bin, kBins> bins{};
+  int used = 0;
   for (int k = 1; k + 1 < kBins; ++k) {  // the end bins left out: clipping at 0 and 255 biases their medians
     const int c = count[static_cast<std::size_t>(k)];
-    if (c < std::max(20, n / 50)) continue;
-    int cum = 0, med = 0;
-    for (int d = 0; d < 511; ++d) {
-      cum += hist[static_cast<std::size_t>(k)][static_cast<std::size_t>(d)];
-      if (2 * cum > c) {
-        med = d - 255;
-        break;
-      }
-    }
-    const double x = level[static_cast<std::size_t>(k)] / c, w = c;
-    sw += w;
-    sx += w * x;
-    sy += w * med;
-    sxx += w * x * x;
-    sxy += w * x * med;
+    if (c < std::max(5, n / 50)) continue;
+    const auto first = s.begin() + n + start[static_cast<std::size_t>(k)];
+    const auto mid = first + c / 2;
+    std::nth_element(first, mid, first + c, [](const PhotometricSample& p, const PhotometricSample& q) { return p.diff < q.diff; });
+    double level = 0;
+    for (auto it = first; it != first + c; ++it) level += it->level;
+    // The median's standard error from the bin's median absolute deviation (1.4826 MAD: the sd
+    // of a normal sample; the median's is sqrt(pi / 2) sd / sqrt(c)), at least 0.1 level.
+    const float med = mid->diff;
+    for (int i = 0; i < c; ++i) s[static_cast<std::size_t>(i)].diff = std::abs(first[i].diff - med);
+    std::nth_element(s.begin(), s.begin() + c / 2, s.begin() + c,
+                     [](const PhotometricSample& p, const PhotometricSample& q) { return p.diff < q.diff; });
+    const double se = std::max(0.1, 1.4826 * 1.2533 * s[static_cast<std::size_t>(c / 2)].diff / std::sqrt(c));
+    bins[static_cast<std::size_t>(used++)] = {level / c, med, 1.0 / (se * se)};
   }
-  if (!(sw > 0)) return out;
-  const double mx = sx / sw, my = sy / sw, vx = sxx / sw - mx * mx;
-  const double slope = vx > 100.0 ? (sxy / sw - mx * my) / vx : 0.0;  // a spread of grey levels to fit a gain on
+  if (used == 0) return out;
+  // The weighted line diff = slope level + intercept through the bins' medians but bin `skip`
+  // (none: -1); no slope when their levels spread less than 10 levels sd. Its covariance is scaled
+  // up by the bins' scatter about it when that exceeds their standard errors. Significant: one
+  // grey level or more, and three standard errors, at either end of the levels the bins cover.
+  struct Line {
+    double mx = 0, my = 0, slope = 0, lo = 255, hi = 0;
+    bool significant = false;
+  };
+  const auto fit = [&](int skip) {
+    Line l;
+    double sw = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
+    int m = 0;
+    for (int k = 0; k < used; ++k) {
+      if (k == skip) continue;
+      const Bin& q = bins[static_cast<std::size_t>(k)];
+      sw += q.w;
+      sx += q.w * q.x;
+      sy += q.w * q.y;
+      sxx += q.w * q.x * q.x;
+      sxy += q.w * q.x * q.y;
+      l.lo = std::min(l.lo, q.x);
+      l.hi = std::max(l.hi, q.x);
+      ++m;
+    }
+    if (m == 0) return l;
+    l.mx = sx / sw;
+    l.my = sy / sw;
+    const double vx = sxx / sw - l.mx * l.mx;
+    const bool fit_slope = vx > 100.0;
+    l.slope = fit_slope ? (sxy / sw - l.mx * l.my) / vx : 0.0;
+    double chi2 = 0;
+    for (int k = 0; k < used; ++k) {
+      if (k == skip) continue;
+      const Bin& q = bins[static_cast<std::size_t>(k)];
+      chi2 += q.w * std::pow(q.y - (l.my + l.slope * (q.x - l.mx)), 2);
+    }
+    const int dof = m - (fit_slope ? 2 : 1);
+    const double inflate = dof > 0 ? std::max(1.0, chi2 / dof) : 1.0;
+    for (const double x : {l.lo, l.hi}) {
+      const double d = l.my + l.slope * (x - l.mx);
+      const double var = inflate * (1.0 / sw + (fit_slope ? (x - l.mx) * (x - l.mx) / (sw * vx) : 0.0));
+      l.significant = l.significant || (std::abs(d) >= 1.0 && std::abs(d) >= 3.0 * std::sqrt(var));
+    }
+    return l;
+  };
+  const Line line = fit(-1);
+  // A change of exposure moves every level: it stays significant with any one bin left out (a
+  // motion can change one surface's smoothed grey levels, and a surface can fill a bin).
+  bool significant = line.significant;
+  for (int k = 0; significant && used >= 3 && k < used; ++k) significant = fit(k).significant;
   // b = g a + o against the mean level m = (a + b) / 2: b - a = s m + c with s = 2 (g - 1) / (1 + g)
   // and c = 2 o / (1 + g).
-  if (!(std::abs(slope) < 1.0)) return out;  // a gain beyond 3 or under 1/3: not an exposure change
-  out.gain = (2.0 + slope) / (2.0 - slope);
-  out.offset = (my - slope * mx) * (1.0 + out.gain) / 2.0;
+  if (!significant || !(std::abs(line.slope) < 1.0)) return out;  // a gain beyond 3 or under 1/3: not an exposure change
+  out.gain = (2.0 + line.slope) / (2.0 - line.slope);
+  out.offset = (line.my - line.slope * line.mx) * (1.0 + out.gain) / 2.0;
+  out.lo = line.lo;
+  out.hi = line.hi;
   return out;
 }
 
@@ -247,22 +331,38 @@ void KltTracker::process(const cv::Mat& frame) {
     std::vector<uchar> st, stb;
     std::vector<float> err, errb;
     const cv::TermCriteria term(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 20, 0.03);
-    // A change of exposure between the frames (auto-exposure, flicker) breaks Lucas-Kanade's
-    // brightness constancy: with TrackerOptions::exposure_compensation the last frame is brought
-    // to this one's brightness, a gain and an offset from the two frames' median differences at
-    // the same pixels (photometricChange).
-    // The last frame is its pyramid's level 0 (buildOpticalFlowPyramid with derivatives:
-    // images at even indices).
-    const cv::Mat& last = prev_pyr_[0];
-    const Photometric change = o_.exposure_compensation ? photometricChange(last, gray) : Photometric{};
+    // The last frame's pyramid: images at even indices (buildOpticalFlowPyramid with derivatives).
     const std::vector<cv::Mat>* prev = &prev_pyr_;
-    if (change.changes()) {
-      last.convertTo(shifted_, CV_8U, change.gain, change.offset);
-      cv::buildOpticalFlowPyramid(shifted_, shifted_pyr_, win, built);
-      prev = &shifted_pyr_;
+    cv::calcOpticalFlowPyrLK(*prev, pyr, p0, p1, st, err, win, levels, term, cv::OPTFLOW_USE_INITIAL_FLOW, o_.min_eig);
+    if (o_.exposure_compensation) {
+      // A change of exposure between the frames (auto-exposure, flicker) breaks Lucas-Kanade's
+      // brightness constancy, and its forward-backward check then ends the tracks. Measured at the
+      // pairs the forward step found (photometricChangeAt, on pyramid level 2: a smoothed grey
+      // level, little changed by a track's sub-pixel error), a motion does not read as a change;
+      // when a change is found, the last frame is brought to this frame's brightness and the step
+      // repeated from the prediction, up to three times (the first step's pairs are pulled by the
+      // change itself: on box-1deg under the flicker of tests/test_adaptive.cpp 279 tracks with
+      // one measurement, 291 with up to three, none needing a fourth; 311 without the flicker).
+      const int L = std::min(2, built);
+      const auto level = [L](const std::vector<cv::Mat>& p) -> const cv::Mat& { return p[static_cast<std::size_t>(2 * L)]; };
+      // The total change applied (b ~ gain a + offset); measured again after the repeated step,
+      // whose pairs are closer (the first step's are pulled by the change itself), and composed.
+      Photometric total;
+      for (int round = 0; round < 3; ++round) {
+        const Photometric change = photometricChangeAt(level(*prev), level(pyr), p0, p1, st, std::ldexp(1.0, -L), &photometric_work_);
+        if (!change.changes()) break;
+        exposure_changes_ += round == 0;
+        total.offset = change.gain * total.offset + change.offset;
+        total.gain *= change.gain;
+        prev_pyr_[0].convertTo(shifted_, CV_8U, total.gain, total.offset);
+        cv::buildOpticalFlowPyramid(shifted_, shifted_pyr_, win, built);
+        prev = &shifted_pyr_;
+        for (size_t i = 0; i < cur_.size(); ++i) {
+          p1[i] = cv::Point2f(static_cast<float>(cur_[i].px.x() + pred[i].x()), static_cast<float>(cur_[i].px.y() + pred[i].y()));
+        }
+        cv::calcOpticalFlowPyrLK(*prev, pyr, p0, p1, st, err, win, levels, term, cv::OPTFLOW_USE_INITIAL_FLOW, o_.min_eig);
+      }
     }
-    cv::calcOpticalFlowPyrLK(*prev, pyr, p0, p1, st, err, win, levels, term, cv::OPTFLOW_USE_INITIAL_FLOW,
-                             o_.min_eig);
     pb = p0;
     if (o_.fb_check) {
       cv::calcOpticalFlowPyrLK(pyr, *prev, p1, pb, stb, errb, win, levels, term, cv::OPTFLOW_USE_INITIAL_FLOW,
@@ -328,7 +428,7 @@ Tracks KltTracker::tracks(int first_frame) const {
 }
 
 Tracks trackInput(const std::string& input, const TrackerOptions& options, FrameRange range,
-                  const std::function<void(int, int)>& progress) {
+                  const std::function<void(int, int)>& progress, TrackingStats* stats) {
   KltTracker tracker(options);
   // The smallest frame the tracker works in: a window and the anchoring template inside the
   // border on both sides.
@@ -338,6 +438,7 @@ Tracks trackInput(const std::string& input, const TrackerOptions& options, Frame
       {need, fmt::format("tracking with a {} px window, {} px template radius and {} px border needs", options.window_px,
                          options.affine.radius, options.border_px)});
   Tracks t = tracker.tracks(range.first);
+  if (stats) *stats = {std::max(0L, static_cast<long>(t.numFrames()) - 1), tracker.exposureChanges()};
   // Frames before the first corner carry nothing to estimate from (the tracker detects again in
   // every frame until corners appear): the tracks start at the first frame that has some.
   trimLeadingEmptyFrames(&t);

@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <span>
 #include <vector>
 
 #include "rsfm/track/tracks.hpp"
@@ -18,21 +19,37 @@
 
 namespace rsfm::vision {
 
-/// The exposure change from grey frame a to grey frame b (same size, CV_8UC1): b ~ gain a +
-/// offset. Every 4th pixel of every 4th row is binned by its mean grey level in a and b; each
-/// bin's median difference b - a (a change of exposure moves every pixel alike; a small motion
-/// changes pixels both ways, mostly at edges) and a line through those medians weighted by the
-/// bins' counts (the darkest and brightest bins left out: clipping biases them; no gain when the
-/// mean levels have a variance under 100). A large motion (most pixels changed) can read as a
-/// change of a few levels (docs/tracks.md, "Exposure changes"). Unit gain, zero offset when the
-/// sizes or types differ.
+/// An exposure change b ~ gain a + offset between two 8-bit grey frames (docs/tracks.md,
+/// "Exposure changes").
 struct Photometric {
   double gain = 1.0, offset = 0.0;
-  /// Moves some grey level in [16, 240] by a level or more: the 8-bit quantum (a smaller change
-  /// is below what the frames can show, and applied it would only re-round them).
-  bool changes() const { return std::max(std::abs((gain - 1.0) * 16.0 + offset), std::abs((gain - 1.0) * 240.0 + offset)) >= 1.0; }
+  double lo = 16, hi = 240;  ///< the grey levels the change was measured over
+  /// Moves a grey level in [lo, hi] by a level or more: the 8-bit quantum (a smaller change is
+  /// below what the frames can show, and applied it would only re-round them).
+  bool changes() const { return std::max(std::abs((gain - 1.0) * lo + offset), std::abs((gain - 1.0) * hi + offset)) >= 1.0; }
 };
-Photometric photometricChange(const cv::Mat& a, const cv::Mat& b);
+/// One corresponding pair's grey levels: their mean and the difference b - a.
+struct PhotometricSample {
+  float level, diff;
+};
+/// The exposure change from frame a to frame b (CV_8UC1) measured at corresponding points:
+/// pa[i] in a and pb[i] in b, in pixels of the frames' level 0, read bilinearly at `scale` x
+/// those (a and b are then a pyramid level of the frames, 2^-L: a smoothed grey level that a
+/// track's sub-pixel error hardly changes); pairs with ok[i] == 0 (ok empty: all used) or outside
+/// either image are skipped. The pairs are binned by their mean level (16 bins of 16 levels);
+/// each bin's median difference (a change of exposure moves every point alike; a wrong pair
+/// is an outlier) with its standard error (from the bin's median absolute deviation), and a
+/// line through those medians weighted by their inverse variances (the darkest and brightest
+/// bins left out: clipping biases them; bins under max(5, 2 % of the pairs) left out; no gain
+/// when the mean levels have a variance under 100). A change is reported (lo, hi: the bins'
+/// levels) only when, at either end of the levels covered, it is a grey level or more and three
+/// standard errors of the line (scaled up by the bins' scatter about it when that exceeds their
+/// errors: a motion that changes some surfaces' smoothed grey levels). Unit gain, zero offset
+/// otherwise, with fewer than 20 pairs, or with mismatched inputs. `work` (optional) is a
+/// buffer kept between calls.
+Photometric photometricChangeAt(const cv::Mat& a, const cv::Mat& b, std::span<const cv::Point2f> pa,
+                                std::span<const cv::Point2f> pb, std::span<const uchar> ok, double scale = 1.0,
+                                std::vector<PhotometricSample>* work = nullptr);
 
 struct TrackerOptions {
   int max_tracks = 300;             ///< corners kept alive at most
@@ -71,16 +88,14 @@ struct TrackerOptions {
   AffineLkOptions affine{.converge_shape = false};  ///< the anchoring's alignment (its position matters, not its shape)
   double anchor_max_px = 2.0;
   int anchor_every = 1;             ///< align to the first appearance every this many frames (2: 13 % faster tracking, focal errors 1.5x larger on the rendered orbits)
-  /// Exposure changes (auto-exposure, flicker): before each step the last frame is brought to
-  /// this frame's brightness (photometricChange: b ~ gain a + offset, applied when it moves a grey
-  /// level by one or more), since Lucas-Kanade assumes constant brightness and its
-  /// forward-backward check fails under a change of a few grey levels (box.mp4 brightened by
-  /// 2.4 levels every second frame: 2216 tracks living a median 3 frames against 600 living 41.5;
-  /// with this on, 618 living 34). Off by default: measured at the same pixels of the two frames,
-  /// a large motion (10 deg per frame, hand-held jitter) reads as a change of 2-5 levels where
-  /// there is none, and the regime suite's box-jitter then ended with a normal 2.5 deg off
-  /// (docs/tracks.md, "Exposure changes").
-  bool exposure_compensation = false;
+  /// Exposure changes (auto-exposure, flicker): Lucas-Kanade assumes constant brightness and
+  /// its forward-backward check fails under a change of a few grey levels (box.mp4 brightened by
+  /// 2.4 levels every second frame: tracks lived a median 3 frames against 41.5). After each
+  /// forward step the change is measured at the pairs it found (photometricChangeAt); when it
+  /// moves a grey level by one or more, the last frame is brought to this frame's brightness and
+  /// the step repeated (docs/tracks.md, "Exposure changes"). A sequence without such changes
+  /// tracks exactly as with this off.
+  bool exposure_compensation = true;
   /// Region of interest: polygon in the first frame's pixels (empty: the whole image). Later
   /// re-detections stay inside the convex hull of the live tracks that started in it.
   std::vector<cv::Point2f> roi;
@@ -103,6 +118,9 @@ class KltTracker {
   const std::vector<TrackPoint>& live() const { return cur_; }
   /// Times a track was re-anchored because its first appearance no longer matched.
   long reanchored() const { return reanchored_; }
+  /// Steps repeated with the last frame brought to the next one's brightness
+  /// (TrackerOptions::exposure_compensation).
+  long exposureChanges() const { return exposure_changes_; }
 
  private:
   void detect(const cv::Mat& gray, bool first);
@@ -116,6 +134,8 @@ class KltTracker {
   cv::Mat gray_;                               // the frame in 8-bit grey (buffer reused)
   cv::Mat shifted_;                            // the last frame brought to this frame's brightness (buffer)
   std::vector<cv::Mat> shifted_pyr_;           // its pyramid (buffers)
+  std::vector<PhotometricSample> photometric_work_;  // photometricChangeAt's buffer
+  long exposure_changes_ = 0;
   std::vector<TrackPoint> cur_;
   /// Per live track (cur_'s order): its last frame-to-frame displacement (NaN: none yet).
   std::vector<Eigen::Vector2d> vel_;
@@ -142,12 +162,18 @@ class KltTracker {
 namespace rsfm::vision {
 
 
+/// What trackInput saw besides the tracks.
+struct TrackingStats {
+  long steps = 0;             ///< frame-to-frame steps tracked
+  long exposure_changes = 0;  ///< of them, steps tracked again for a change of exposure (KltTracker::exposureChanges)
+};
+
 /// Tracks `input` (video, pattern or folder) over `range`. `progress(done, total)` is called per
 /// frame (total = -1 when unknown). Leading frames without any track (a video that fades in from
 /// black, featureless frames) are left out: the tracks' first_frame is the first frame with
 /// corners (callers say so when it is after range.first). Throws io::InputError on bad input
-/// (including a range that starts after the end, or fewer than 2 frames).
+/// (including a range that starts after the end, or fewer than 2 frames). `stats`: optional.
 Tracks trackInput(const std::string& input, const TrackerOptions& options, FrameRange range = {},
-                  const std::function<void(int, int)>& progress = {});
+                  const std::function<void(int, int)>& progress = {}, TrackingStats* stats = nullptr);
 
 }  // namespace rsfm::vision
