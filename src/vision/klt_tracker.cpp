@@ -247,6 +247,7 @@ Photometric photometricChangeAt(const cv::Mat& a, const cv::Mat& b, std::span<co
   struct Line {
     double mx = 0, my = 0, slope = 0, lo = 255, hi = 0;
     bool significant = false;
+    double most = 0;  // the largest |change| at an end of [lo, hi]
   };
   const auto fit = [&](int skip) {
     Line l;
@@ -281,22 +282,25 @@ Photometric photometricChangeAt(const cv::Mat& a, const cv::Mat& b, std::span<co
     for (const double x : {l.lo, l.hi}) {
       const double d = l.my + l.slope * (x - l.mx);
       const double var = inflate * (1.0 / sw + (fit_slope ? (x - l.mx) * (x - l.mx) / (sw * vx) : 0.0));
-      l.significant = l.significant || (std::abs(d) >= 1.0 && std::abs(d) >= 3.0 * std::sqrt(var));
+      l.significant = l.significant || std::abs(d) >= 3.0 * std::sqrt(var);
+      l.most = std::max(l.most, std::abs(d));
     }
     return l;
   };
   const Line line = fit(-1);
-  // A change of exposure moves every level: it stays significant with any one bin left out (a
-  // motion can change one surface's smoothed grey levels, and a surface can fill a bin).
-  bool significant = line.significant;
-  for (int k = 0; significant && used >= 3 && k < used; ++k) significant = fit(k).significant;
+  double robust = line.significant ? line.most : 0.0;
+  for (int k = 0; robust > 0 && used >= 3 && k < used; ++k) {
+    const Line l = fit(k);
+    robust = l.significant ? std::min(robust, l.most) : 0.0;
+  }
   // b = g a + o against the mean level m = (a + b) / 2: b - a = s m + c with s = 2 (g - 1) / (1 + g)
   // and c = 2 o / (1 + g).
-  if (!significant || !(std::abs(line.slope) < 1.0)) return out;  // a gain beyond 3 or under 1/3: not an exposure change
+  if (!line.significant || !(std::abs(line.slope) < 1.0)) return out;  // a gain beyond 3 or under 1/3: not an exposure change
   out.gain = (2.0 + line.slope) / (2.0 - line.slope);
   out.offset = (line.my - line.slope * line.mx) * (1.0 + out.gain) / 2.0;
   out.lo = line.lo;
   out.hi = line.hi;
+  out.robust_levels = robust;
   return out;
 }
 
@@ -338,19 +342,19 @@ void KltTracker::process(const cv::Mat& frame) {
       // A change of exposure between the frames (auto-exposure, flicker) breaks Lucas-Kanade's
       // brightness constancy, and its forward-backward check then ends the tracks. Measured at the
       // pairs the forward step found (photometricChangeAt, on pyramid level 2: a smoothed grey
-      // level, little changed by a track's sub-pixel error), a motion does not read as a change;
-      // when a change is found, the last frame is brought to this frame's brightness and the step
-      // repeated from the prediction, up to three times (the first step's pairs are pulled by the
-      // change itself: on box-1deg under the flicker of tests/test_adaptive.cpp 279 tracks with
-      // one measurement, 291 with up to three, none needing a fourth; 311 without the flicker).
+      // level, little changed by a track's sub-pixel error), a motion does not read as a change.
+      // When a robust change of a grey level or more is found, the last frame is brought to this
+      // frame's brightness and the step repeated from the prediction; the change left is measured
+      // again at the new pairs (the first step's are pulled towards the old brightness, so its
+      // change reads about half the true one) and, while it is robust (any size), composed and the
+      // step repeated: four steps at most (docs/tracks.md, "Exposure changes").
       const int L = std::min(2, built);
       const auto level = [L](const std::vector<cv::Mat>& p) -> const cv::Mat& { return p[static_cast<std::size_t>(2 * L)]; };
-      // The total change applied (b ~ gain a + offset); measured again after the repeated step,
-      // whose pairs are closer (the first step's are pulled by the change itself), and composed.
+      // The total change applied (b ~ gain a + offset).
       Photometric total;
-      for (int round = 0; round < 3; ++round) {
+      for (int round = 0; round < 4; ++round) {
         const Photometric change = photometricChangeAt(level(*prev), level(pyr), p0, p1, st, std::ldexp(1.0, -L), &photometric_work_);
-        if (!change.changes()) break;
+        if (round == 0 ? !change.changes() : !(change.robust_levels > 0)) break;
         exposure_changes_ += round == 0;
         total.offset = change.gain * total.offset + change.offset;
         total.gain *= change.gain;

@@ -22,11 +22,19 @@ namespace rsfm::vision {
 /// An exposure change b ~ gain a + offset between two 8-bit grey frames (docs/tracks.md,
 /// "Exposure changes").
 struct Photometric {
-  double gain = 1.0, offset = 0.0;
-  double lo = 16, hi = 240;  ///< the grey levels the change was measured over
-  /// Moves a grey level in [lo, hi] by a level or more: the 8-bit quantum (a smaller change is
-  /// below what the frames can show, and applied it would only re-round them).
-  bool changes() const { return std::max(std::abs((gain - 1.0) * lo + offset), std::abs((gain - 1.0) * hi + offset)) >= 1.0; }
+  double gain = 1.0, offset = 0.0;  ///< unit, zero: no change found
+  double lo = 16, hi = 240;         ///< the grey levels the change was measured over
+  /// The change (grey levels) that stays significant with any one of the bins of grey levels
+  /// left out: over those fits, the smallest of each one's largest change at an end of its levels;
+  /// 0 when one of them is not significant (a motion can change one surface's smoothed grey
+  /// levels, and one surface can fill a bin).
+  double robust_levels = 0;
+  /// A robust change of a grey level or more, also with any one bin left out: the 8-bit quantum
+  /// (a smaller change is below what the frames can show, and applied it would only re-round
+  /// them).
+  bool changes() const {
+    return robust_levels >= 1.0 && std::max(std::abs((gain - 1.0) * lo + offset), std::abs((gain - 1.0) * hi + offset)) >= 1.0;
+  }
 };
 /// One corresponding pair's grey levels: their mean and the difference b - a.
 struct PhotometricSample {
@@ -41,12 +49,12 @@ struct PhotometricSample {
 /// is an outlier) with its standard error (from the bin's median absolute deviation), and a
 /// line through those medians weighted by their inverse variances (the darkest and brightest
 /// bins left out: clipping biases them; bins under max(5, 2 % of the pairs) left out; no gain
-/// when the mean levels have a variance under 100). A change is reported (lo, hi: the bins'
-/// levels) only when, at either end of the levels covered, it is a grey level or more and three
-/// standard errors of the line (scaled up by the bins' scatter about it when that exceeds their
-/// errors: a motion that changes some surfaces' smoothed grey levels). Unit gain, zero offset
-/// otherwise, with fewer than 20 pairs, or with mismatched inputs. `work` (optional) is a
-/// buffer kept between calls.
+/// when the mean levels have a variance under 100). The change is reported (lo, hi: the bins'
+/// levels) when, at either end of the levels covered, it is three standard errors of the line
+/// (scaled up by the bins' scatter about it when that exceeds their errors: a motion that changes
+/// some surfaces' smoothed grey levels), with robust_levels from the same fit with each bin left
+/// out in turn. Unit gain, zero offset otherwise, with fewer than 20 pairs, or with mismatched
+/// inputs. `work` (optional) is a buffer kept between calls.
 Photometric photometricChangeAt(const cv::Mat& a, const cv::Mat& b, std::span<const cv::Point2f> pa,
                                 std::span<const cv::Point2f> pb, std::span<const uchar> ok, double scale = 1.0,
                                 std::vector<PhotometricSample>* work = nullptr);
