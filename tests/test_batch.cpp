@@ -421,7 +421,9 @@ TEST(PlaneBatch, GroupedReferenceBlocksReachTheSameOptimum) {
     EXPECT_NEAR(four.final_cost, one.final_cost, 1e-9 * one.final_cost) << what;
     EXPECT_NEAR(four.state.beta, one.state.beta, 1e-8) << what;
     EXPECT_NEAR(four.state.camera[2], one.state.camera[2], 1e-8) << what;
-    if (!c.rotation_only) EXPECT_LT((four.state.N[0] - one.state.N[0]).norm(), 1e-8) << what;
+    if (!c.rotation_only) {
+      EXPECT_LT((four.state.N[0] - one.state.N[0]).norm(), 1e-8) << what;
+    }
     for (int i = 0; i < Np; ++i) EXPECT_LT((four.state.ref[i] - one.state.ref[i]).norm(), 1e-10) << what << ", point " << i;
     for (int i : {5, 27}) EXPECT_EQ(four.state.ref[i], start.ref[i]) << what;  // never observed: not a parameter
     if (o.compute_covariance) {
