@@ -68,7 +68,8 @@ using PatchOverlay = std::function<vision::OverlayInfo(const PatchRunResult&, co
 
 /// The pipeline (pipeline/estimate.hpp) + report (+ the overlay when given). Returns the exit code.
 /// What `rsfm run`'s tracking adds to summary.json: its seconds (`stage_seconds`) and its
-/// `tracking` object (docs/outputs.md).
+/// `tracking` object (docs/outputs.md). vision::TrackingStats' counts, copied so that this
+/// header, also built into `rsfm` (no video commands), does not include the tracker's.
 struct RunTracking {
   double seconds = 0;
   long steps = 0;                       ///< frame-to-frame steps tracked

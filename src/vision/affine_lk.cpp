@@ -1,4 +1,5 @@
 #include "rsfm/vision/affine_lk.hpp"
+#include "sampling.hpp"
 
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
@@ -8,22 +9,6 @@
 namespace rsfm::vision {
 
 namespace {
-
-/// Bilinear sample of a CV_32F image at (x, y) in [0, cols - 1) x [0, rows - 1) (not checked).
-inline float bilinear(const cv::Mat& img, double x, double y) {
-  const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
-  const float ax = static_cast<float>(x - x0), ay = static_cast<float>(y - y0);
-  const float* r0 = img.ptr<float>(y0) + x0;
-  const float* r1 = img.ptr<float>(y0 + 1) + x0;
-  return (1 - ay) * ((1 - ax) * r0[0] + ax * r0[1]) + ay * ((1 - ax) * r1[0] + ax * r1[1]);
-}
-
-/// Bilinear sample of a CV_32F image; false outside.
-inline bool sample(const cv::Mat& img, double x, double y, float* v) {
-  if (!(x >= 0.0 && y >= 0.0 && x < img.cols - 1 && y < img.rows - 1)) return false;
-  *v = bilinear(img, x, y);
-  return true;
-}
 
 /// Bicubic (Keys, a = -0.5) sample of a CV_32F image; false outside.
 inline bool sampleCubic(const cv::Mat& img, double x, double y, float* v) {
@@ -50,7 +35,7 @@ inline bool sampleCubic(const cv::Mat& img, double x, double y, float* v) {
 }
 
 inline bool sampleWith(bool cubic, const cv::Mat& img, double x, double y, float* v) {
-  return cubic ? sampleCubic(img, x, y, v) : sample(img, x, y, v);
+  return cubic ? sampleCubic(img, x, y, v) : sampleBilinear<float>(img, x, y, v);
 }
 
 }  // namespace
@@ -140,7 +125,7 @@ bool AffineTemplate::align(const cv::Mat& img, Eigen::Matrix2d* A, Eigen::Vector
       if (o_.cubic)
         sampleCubic(img, x, y, &iw[k]);  // inside (the corners' test above)
       else
-        iw[k] = bilinear(img, x, y);
+        iw[k] = bilinear<float>(img, x, y);
     }
     // Gain/bias: normalize the warped image like the template.
     const float mean = static_cast<float>(w_.dot(iw) / wsum);

@@ -2,6 +2,7 @@
 
 #include "rsfm/io/input_error.hpp"
 #include "rsfm/vision/klt_tracker.hpp"
+#include "sampling.hpp"
 
 #include <algorithm>
 #include <array>
@@ -162,22 +163,6 @@ int KltTracker::levelsNeeded() const {
   return L;
 }
 
-namespace {
-
-/// Bilinear grey level of an 8-bit image at (x, y) in its pixels; false outside the image.
-bool bilinear(const cv::Mat& img, float x, float y, float* v) {
-  if (!(x >= 0.f && y >= 0.f && x <= static_cast<float>(img.cols - 1) && y <= static_cast<float>(img.rows - 1))) return false;
-  const int x0 = std::min(static_cast<int>(x), img.cols - 2), y0 = std::min(static_cast<int>(y), img.rows - 2);
-  if (x0 < 0 || y0 < 0) return false;  // a one-pixel-wide image
-  const float fx = x - static_cast<float>(x0), fy = y - static_cast<float>(y0);
-  const uchar* r0 = img.ptr<uchar>(y0);
-  const uchar* r1 = img.ptr<uchar>(y0 + 1);
-  *v = (1.f - fy) * ((1.f - fx) * r0[x0] + fx * r0[x0 + 1]) + fy * ((1.f - fx) * r1[x0] + fx * r1[x0 + 1]);
-  return true;
-}
-
-}  // namespace
-
 // Documented in klt_tracker.hpp.
 Photometric photometricChangeAt(const cv::Mat& a, const cv::Mat& b, std::span<const cv::Point2f> pa,
                                 std::span<const cv::Point2f> pb, std::span<const uchar> ok, double scale,
@@ -199,7 +184,7 @@ Photometric photometricChangeAt(const cv::Mat& a, const cv::Mat& b, std::span<co
   for (std::size_t i = 0; i < pa.size(); ++i) {
     if (!ok.empty() && !ok[i]) continue;
     float va = 0, vb = 0;
-    if (!bilinear(a, f * pa[i].x, f * pa[i].y, &va) || !bilinear(b, f * pb[i].x, f * pb[i].y, &vb)) continue;
+    if (!sampleBilinear<uchar>(a, f * pa[i].x, f * pa[i].y, &va) || !sampleBilinear<uchar>(b, f * pb[i].x, f * pb[i].y, &vb)) continue;
     const float m = 0.5f * (va + vb);
     s.push_back({m, vb - va});
     ++count[static_cast<std::size_t>(std::clamp(static_cast<int>(m) >> 4, 0, kBins - 1))];
@@ -242,8 +227,9 @@ Photometric photometricChangeAt(const cv::Mat& a, const cv::Mat& b, std::span<co
   if (used == 0) return out;
   // The weighted line diff = slope level + intercept through the bins' medians but bin `skip`
   // (none: -1); no slope when their levels spread less than 10 levels sd. Its covariance is scaled
-  // up by the bins' scatter about it when that exceeds their standard errors. Significant: one
-  // grey level or more, and three standard errors, at either end of the levels the bins cover.
+  // up by the bins' scatter about it when that exceeds their standard errors. Significant: three
+  // standard errors at either end of the levels the bins cover (the size, `most`, is judged by
+  // the caller: Photometric::changes).
   struct Line {
     double mx = 0, my = 0, slope = 0, lo = 255, hi = 0;
     bool significant = false;
@@ -325,12 +311,16 @@ void KltTracker::process(const cv::Mat& frame) {
     const int levels = levelsNeeded();
     const std::vector<Eigen::Vector2d> pred = predictedDisplacements();
     std::vector<cv::Point2f> p0, p1, pb;
+    // Track i's predicted position in this frame: where each Lucas-Kanade step starts.
+    const auto predicted = [&](size_t i) {
+      const Eigen::Vector2d x = cur_[i].px + pred[i];
+      return cv::Point2f(static_cast<float>(x.x()), static_cast<float>(x.y()));
+    };
     p0.reserve(cur_.size());
     p1.reserve(cur_.size());
     for (size_t i = 0; i < cur_.size(); ++i) {
-      const Eigen::Vector2d& x = cur_[i].px;
-      p0.emplace_back(static_cast<float>(x.x()), static_cast<float>(x.y()));
-      p1.emplace_back(static_cast<float>(x.x() + pred[i].x()), static_cast<float>(x.y() + pred[i].y()));
+      p0.emplace_back(static_cast<float>(cur_[i].px.x()), static_cast<float>(cur_[i].px.y()));
+      p1.push_back(predicted(i));
     }
     std::vector<uchar> st, stb;
     std::vector<float> err, errb;
@@ -361,9 +351,7 @@ void KltTracker::process(const cv::Mat& frame) {
         prev_pyr_[0].convertTo(shifted_, CV_8U, total.gain, total.offset);
         cv::buildOpticalFlowPyramid(shifted_, shifted_pyr_, win, built);
         prev = &shifted_pyr_;
-        for (size_t i = 0; i < cur_.size(); ++i) {
-          p1[i] = cv::Point2f(static_cast<float>(cur_[i].px.x() + pred[i].x()), static_cast<float>(cur_[i].px.y() + pred[i].y()));
-        }
+        for (size_t i = 0; i < cur_.size(); ++i) p1[i] = predicted(i);
         cv::calcOpticalFlowPyrLK(*prev, pyr, p0, p1, st, err, win, levels, term, cv::OPTFLOW_USE_INITIAL_FLOW, o_.min_eig);
       }
     }
