@@ -33,6 +33,152 @@ bool PlaneBatchBound::estimable(double g_beta, const std::vector<Eigen::Vector3d
   return (null_scaled.transpose() * gs).norm() <= 1e-6 * gs.norm();
 }
 
+namespace {
+
+/// One track's whitened normal equations on its plane's three N components and its own
+/// reference (2), with everything else held: the jackknife's (planeJackknife) pieces.
+struct TrackPlaneInfo {
+  Eigen::Matrix3d Snn = Eigen::Matrix3d::Zero();
+  Eigen::Matrix<double, 3, 2> Snu = Eigen::Matrix<double, 3, 2>::Zero();
+  Eigen::Matrix2d Suu = Eigen::Matrix2d::Zero();
+  Eigen::Vector3d gn = Eigen::Vector3d::Zero();
+  Eigen::Vector2d gu = Eigen::Vector2d::Zero();
+  int observations = 0;
+  void add(const Eigen::Matrix<double, 2, 3>& JN, const Eigen::Matrix2d& Ju, const Eigen::Vector2d& r) {
+    Snn.noalias() += JN.transpose() * JN;
+    Snu.noalias() += JN.transpose() * Ju;
+    Suu.noalias() += Ju.transpose() * Ju;
+    gn.noalias() += JN.transpose() * r;
+    gu.noalias() += Ju.transpose() * r;
+    ++observations;
+  }
+};
+
+/// The delete-one-track jackknife of each plane's N components (PlaneBatchBoundOptions::
+/// track_clustered; [E82] ch. 3 for the jackknife, [MW85] for it as the leverage-robust form of
+/// the sandwich, [CGM11] for clusters). The sandwich V = sum_t (S+ g_t)(S+ g_t)^T reads a track
+/// that alone decides a direction (high leverage) as if it were one of many: the fit follows it,
+/// so its residual and its score are small, and a plane carried by two tracks and a few that
+/// barely move was reported well determined (box.mp4 under an FFmpeg contrast swing: 11 tracks,
+/// sd 3.1 deg, 30 deg off). Here, with the motions, beta and the other planes held at the
+/// optimum, each track t of plane j gives (its own reference eliminated) an information I_t and
+/// a score s_t on the plane's kept N components. Dropping it moves them by
+/// d_t = (I - I_t)^-1 s_t (I = sum_t I_t; exact for the linearized problem), and
+/// V_J = (T-1)/T sum_t (d_t - mean d)(d_t - mean d)^T is the jackknife covariance, against the
+/// same problem's sandwich V_0 = sum_t (I^-1 s_t)(I^-1 s_t)^T. With every leverage small the two
+/// agree; ratio = lambda_max(V_J) / lambda_max(V_0) (both in I's metric) is what the sandwich
+/// misses. The sandwich of the whole problem (`sandwich_N`: its largest variance ratio on the
+/// plane's N components against the bound, track or region clusters) corrected for it reads
+/// sandwich_N x ratio; where that exceeds what the track-clustered check already gave
+/// (clustered_N^2), the plane's rows and columns of `cov` are scaled by
+/// a = sqrt(sandwich_N x ratio) / clustered_N (jackknife_N = max(1, a)). A bound the
+/// sandwich stays inside is not widened for leverage alone. A track without which a direction
+/// is not determined at all (a leverage of 1: I - I_t singular), or scores that vanish while the
+/// jackknife's do not, make it infinite; `cov` is then left as it is.
+void planeJackknife(const PlaneBatchData& data, const std::vector<int>& iN, const std::vector<TrackPlaneInfo>& tp,
+                    const std::vector<double>& sandwich_N, PlaneBatchBound* out) {
+  // At most 3 x 3 (a plane's kept components): fixed storage, no heap allocation per track.
+  using M3 = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, 3, 3>;
+  using V3 = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, 3, 1>;
+  const int m = data.num_planes;
+  const int P = static_cast<int>(tp.size());
+  out->jackknife_N.assign(m, 1.0);
+  out->jackknife_ratio_N.assign(m, 0.0);
+  std::vector<M3> It;
+  std::vector<V3> st, d;
+  It.reserve(P);
+  st.reserve(P);
+  d.reserve(P);
+  for (int j = 0; j < m; ++j) {
+    int kept[3], k = 0;
+    for (int e = 0; e < 3; ++e)
+      if (iN[3 * j + e] >= 0) kept[k++] = e;
+    if (k == 0) continue;
+    // Per track: I_t and s_t on the kept components, its reference eliminated.
+    It.clear();
+    st.clear();
+    d.clear();
+    M3 I = M3::Zero(k, k);
+    for (int t = 0; t < P; ++t) {
+      if (data.labels[t] != j || tp[t].observations < 2) continue;
+      const Eigen::LDLT<Eigen::Matrix2d> lu(tp[t].Suu);
+      if (lu.info() != Eigen::Success || !(lu.vectorD().minCoeff() > 0)) continue;
+      const Eigen::Matrix3d Ifull = tp[t].Snn - tp[t].Snu * lu.solve(tp[t].Snu.transpose());
+      const Eigen::Vector3d sfull = tp[t].gn - tp[t].Snu * lu.solve(tp[t].gu);
+      M3 Ik(k, k);
+      V3 sk(k);
+      for (int a = 0; a < k; ++a) {
+        sk[a] = sfull[kept[a]];
+        for (int b = 0; b < k; ++b) Ik(a, b) = Ifull(kept[a], kept[b]);
+      }
+      It.push_back(Ik);
+      st.push_back(sk);
+      I += Ik;
+    }
+    const int T = static_cast<int>(It.size());
+    if (T < 2) continue;
+    // Whitened by I's Cholesky factor (I = L L^T): the bound is the identity there.
+    const Eigen::LLT<M3> llt(I);
+    if (llt.info() != Eigen::Success) continue;
+    const M3 L = llt.matrixL();
+    bool decisive = false;
+    Eigen::SelfAdjointEigenSolver<M3> eh(k);
+    for (int t = 0; t < T && !decisive; ++t) {
+      // The track's leverages: the eigenvalues of H = L^-1 I_t L^-T, in [0, 1]; 1 is a direction
+      // that this track alone determines.
+      const M3 Lt = L.triangularView<Eigen::Lower>().solve(It[t]);
+      const M3 H = L.triangularView<Eigen::Lower>().solve(Lt.transpose());
+      eh.compute(0.5 * (H + H.transpose()));
+      if (eh.info() != Eigen::Success || eh.eigenvalues().maxCoeff() > 1.0 - 1e-9) {
+        decisive = true;
+        break;
+      }
+      // d_t, whitened: L^T (I - I_t)^-1 s_t = (1 - H)^-1 L^-1 s_t.
+      const V3 w = L.triangularView<Eigen::Lower>().solve(st[t]);
+      const M3 IH = M3::Identity(k, k) - H;
+      d.push_back(Eigen::LDLT<M3>(IH).solve(w));
+    }
+    if (decisive) {
+      out->jackknife_N[j] = out->jackknife_ratio_N[j] = INFINITY;
+      continue;
+    }
+    V3 mean = V3::Zero(k);
+    for (const auto& x : d) mean += x;
+    mean /= T;
+    M3 V = M3::Zero(k, k), V0 = M3::Zero(k, k);
+    for (const auto& x : d) V.noalias() += (x - mean) * (x - mean).transpose();
+    V *= static_cast<double>(T - 1) / T;
+    // The sandwich in the same held-motions problem, V_0 = sum_t (I^-1 s_t)(I^-1 s_t)^T (whitened:
+    // the L^-1 s_t): the jackknife's excess over it is the leverage the sandwich misses.
+    for (int t = 0; t < T; ++t) {
+      const V3 w = L.triangularView<Eigen::Lower>().solve(st[t]);
+      V0.noalias() += w * w.transpose();
+    }
+    Eigen::SelfAdjointEigenSolver<M3> ev(V, Eigen::EigenvaluesOnly), e0(V0, Eigen::EigenvaluesOnly);
+    if (ev.info() != Eigen::Success || e0.info() != Eigen::Success) continue;
+    const double vj = std::max(0.0, ev.eigenvalues().maxCoeff()), v0 = std::max(0.0, e0.eigenvalues().maxCoeff());
+    const double ratio = v0 > 0 ? vj / v0 : vj > 0 ? INFINITY : 1.0;
+    if (!std::isfinite(ratio)) {
+      out->jackknife_N[j] = out->jackknife_ratio_N[j] = INFINITY;
+      continue;
+    }
+    out->jackknife_ratio_N[j] = ratio;
+    // The sandwich corrected for the leverage it misses, against what the plane's sd already has.
+    const double clustered = out->clustered_N[j];
+    const double target = std::sqrt(std::max(1.0, sandwich_N[j] * ratio));
+    out->jackknife_N[j] = std::max(1.0, target / clustered);
+    if (!(target > clustered)) continue;
+    const double a = target / clustered;  // the plane's rows and columns: its variances x a^2, PSD kept
+    for (int e = 0; e < k; ++e) {
+      const int i = iN[3 * j + kept[e]];
+      out->cov.row(i) *= a;
+      out->cov.col(i) *= a;
+    }
+  }
+}
+
+}  // namespace
+
 PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchState& at, const PlaneBatchBoundOptions& opt) {
   PlaneBatchBound out;
   const int F = static_cast<int>(data.frames.size()) - 1;
@@ -251,6 +397,9 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     Eigen::MatrixXd A(q, n);
     for (int a = 0; a < q; ++a) A.row(a) = out.cov.row(glob[a]);
     Eigen::MatrixXd g = Eigen::MatrixXd::Zero(q, P);  // A g_t, one column per track
+    // The plane's jackknife over its tracks (below): per track, its information and score on
+    // its plane's N components and its reference, with the motions and beta held.
+    std::vector<TrackPlaneInfo> tp(static_cast<std::size_t>(P));
     for (const Observation& o : data.frames[0]) {
       if (o.id < 0 || o.id >= P) continue;
       Eigen::Vector2d r;
@@ -259,6 +408,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       const int nq = referenceRow(o, &r, idx, &J);
       const Eigen::Matrix<double, 7, 1> v = J.transpose() * r;
       for (int a = 0; a < nq; ++a) g.col(o.id) += A.col(idx[a]) * v[a];
+      tp[o.id].add(Eigen::Matrix<double, 2, 3>::Zero(), J.leftCols<2>(), r);  // columns 0-1: the reference
     }
     for (int k = 1; k <= F; ++k) {
       const FrameBlock& b = blocks[k];
@@ -280,10 +430,24 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
         const Eigen::Matrix<double, 10, 1> v = Jc.transpose() * r;
         for (int a = 0; a < nq; ++a) g.col(o.id) += A.col(idx[a]) * v[a];
         g.col(o.id).noalias() -= W * (Jm.transpose() * r);
+        // This observation's columns on its plane's N components and its reference.
+        const int l = data.labels[o.id];
+        Eigen::Matrix<double, 2, 3> JN = Eigen::Matrix<double, 2, 3>::Zero();
+        Eigen::Matrix2d Ju = Eigen::Matrix2d::Zero();
+        for (int a = 0; a < nq; ++a) {
+          for (int e = 0; e < 3; ++e)
+            if (iN[3 * l + e] >= 0 && idx[a] == iN[3 * l + e]) JN.col(e) = Jc.col(a);
+          for (int e = 0; e < 2; ++e)
+            if (idx[a] == 2 * o.id + e) Ju.col(e) = Jc.col(a);
+        }
+        tp[o.id].add(JN, Ju, r);
       }
     }
     int tracks = 0;
     for (int t = 0; t < P; ++t) tracks += !g.col(t).isZero(0.0);
+    // Per plane: the sandwiches' largest variance ratio (track or region clusters) on its N
+    // components against the bound, before widening (0: not computed).
+    std::vector<double> sandwich_N(m, 0.0);
     // The spatial clusters' scores (spatial_grid): the tracks' scores summed per cell.
     Eigen::MatrixXd gs;
     int cells = 0;
@@ -358,12 +522,20 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       // The spatial clusters widen beta and the planes only: the camera's bound decides whether
       // the principal point and the distortion are held (RefineResult), and a region's shared
       // error is what a free camera absorbs.
-      if (cells > 1 && !no_camera.empty()) widen(gs * gs.transpose() * (static_cast<double>(cells) / (cells - 1)), no_camera);
+      Eigen::MatrixXd Vs;
+      if (cells > 1 && !no_camera.empty()) {
+        Vs = gs * gs.transpose() * (static_cast<double>(cells) / (cells - 1));
+        widen(Vs, no_camera);
+      }
       Eigen::VectorXd f = Eigen::VectorXd::Ones(q), ratio = Eigen::VectorXd::Zero(q);
       for (int a = 0; a < q; ++a)
         if (c0[a] > 0) {
           ratio[a] = std::isfinite(V(a, a)) ? V(a, a) / c0[a] : 0.0;
           f[a] = std::sqrt(std::max(1.0, out.cov(glob[a], glob[a]) / c0[a]));
+          for (int j = 0; j < m; ++j)
+            for (int e = 0; e < 3; ++e)
+              if (iN[3 * j + e] == glob[a])
+                sandwich_N[j] = std::max({sandwich_N[j], ratio[a], Vs.size() && std::isfinite(Vs(a, a)) ? Vs(a, a) / c0[a] : 0.0});
         }
       for (int a = 0; a < q; ++a) {
         if (glob[a] == iBeta) {
@@ -377,6 +549,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
           if (iC[e] == glob[a]) out.clustered_camera[e] = f[a];
       }
     }
+    planeJackknife(data, iN, tp, sandwich_N, &out);
   }
   const Eigen::MatrixXd& cov = out.cov;
   out.beta_estimable = iBeta >= 0 && out.estimable(1.0, {}, Eigen::Vector4d::Zero());

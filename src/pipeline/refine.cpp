@@ -463,6 +463,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   r.clustered_focal_factor = b.clustered_beta;
   r.clustered_focal_ratio = b.clustered_beta_ratio;
   r.clustered_plane_factor = b.clustered_N;
+  r.jackknife_plane_factor = b.jackknife_N;
   r.undetermined_frames = b.skipped_frames;
   // Determinacy (rsfm/determinacy.hpp).
   const double beta = st.beta, f = s / beta;
@@ -687,11 +688,17 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     // A plane that lost most of its tracks as outliers was not one surface (two faces one
     // homography carried at the pair frame, edges, shadows): what is left of it says little.
     const bool mixed = j < static_cast<int>(r.plane_relabelled.size()) && 2 * r.plane_relabelled[j] > r.plane_tracks[j];
-    const bool det = r.translation_significant && rotates && b.normal_estimable[j] && sd <= kDeterminedNormalSdDeg && !mixed;
+    // A plane with a direction that one of its tracks alone decides (the jackknife's leverage 1,
+    // PlaneBatchBound::jackknife_N) has nothing that tests it there.
+    const bool single = j < static_cast<int>(b.jackknife_N.size()) && !std::isfinite(b.jackknife_N[j]);
+    const bool det =
+        r.translation_significant && rotates && b.normal_estimable[j] && sd <= kDeterminedNormalSdDeg && !mixed && !single;
     r.plane_determined.push_back(det);
     if (mixed)
       why.push_back(fmt::format("plane {}: {} of its {} tracks were off it (not one surface)", j, r.plane_relabelled[j],
                                 r.plane_tracks[j]));
+    else if (single && r.translation_significant && rotates && b.normal_estimable[j])
+      why.push_back(fmt::format("plane {}: one of its tracks alone decides its normal (no other track tests it)", j));
     else if (!det && r.translation_significant && rotates)
       why.push_back(b.normal_estimable[j] ? fmt::format("plane {} normal sd {:.1f} deg (limit {:.0f} deg){}", j, sd, kDeterminedNormalSdDeg,
                                                         j < static_cast<int>(r.plane_profile_spread_deg.size()) &&
@@ -774,6 +781,11 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   r.message += fmt::format(", correlation inflation {:.1f}", r.correlation_inflation);
   r.message += fmt::format(", sd widened by the track-clustered check: focal x{:.2f}, planes x{:.2f}", r.clustered_focal_factor,
                            fmt::join(r.clustered_plane_factor, "/x"));
+  if (!r.jackknife_plane_factor.empty()) {
+    std::vector<std::string> jk;
+    for (double x : r.jackknife_plane_factor) jk.push_back(std::isfinite(x) ? fmt::format("x{:.2f}", x) : std::string("one track decides"));
+    r.message += fmt::format(", planes' track jackknife {}", fmt::join(jk, "/"));
+  }
   r.seconds = steadySeconds() - t_start;
   return r;
 }

@@ -308,6 +308,7 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                          {"correlation_inflation", rf.correlation_inflation},
                          {"clustered_focal_factor", rf.clustered_focal_factor},
                          {"clustered_plane_factor", rf.clustered_plane_factor},
+                         {"jackknife_plane_factor", rf.jackknife_plane_factor},
                          {"plane_profile_spread_deg", rf.plane_profile_spread_deg},
                          {"tracks", rf.tracks},
                          {"observations", rf.observations},

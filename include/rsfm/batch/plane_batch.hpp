@@ -196,6 +196,16 @@ struct PlaneBatchBound {
   double clustered_beta_ratio = 0.0;  ///< V / cov for beta before widening (0: not computed)
   std::vector<double> clustered_N;
   std::array<double, 4> clustered_camera{1, 1, 1, 1};
+  /// With track_clustered, per plane: the further sd factor on its N components from the
+  /// delete-one-track jackknife (plane_batch_bound.cpp, planeJackknife), which sees the leverage
+  /// the sandwich misses (a track that alone decides a direction: the fit follows it, so its
+  /// score is small). jackknife_ratio_N is the jackknife's largest variance over the sandwich's
+  /// with the motions held (0: not computed); the sandwich's variance ratio on the plane times it,
+  /// where above clustered_N^2, widens the plane's rows and columns of cov by jackknife_N (1: not
+  /// widened). Infinite (both) when one track alone decides a direction of the plane, the motions
+  /// held (a leverage of 1: e.g. a plane of three tracks); cov is then not widened for it and the
+  /// plane's normal must not be called determined.
+  std::vector<double> jackknife_N, jackknife_ratio_N;
   /// Whether a functional of (beta, N..., camera) is estimable: `g_beta`, per plane `g_N` (3) and
   /// `g_camera` (4) its gradient.
   bool estimable(double g_beta, const std::vector<Eigen::Vector3d>& g_N, const Eigen::Vector4d& g_camera) const;

@@ -119,6 +119,11 @@ struct RefineResult {
   double clustered_focal_factor = 1.0;
   double clustered_focal_ratio = 0.0;  ///< its variance ratio (clustered / inflated bound) before max(1, .)
   std::vector<double> clustered_plane_factor;
+  /// Per plane: the further factor on its normal's sd from the delete-one-track jackknife, the
+  /// sandwich corrected for the leverage of the plane's tracks (PlaneBatchBound::jackknife_N,
+  /// docs/estimate.md section 4; 1: not widened). Infinite (null in summary.json) when one track
+  /// alone decides a direction of the plane: the plane is then not determined.
+  std::vector<double> jackknife_plane_factor;
   /// When the focal length is not determined and its profile was run: per plane, the largest
   /// angle (deg) between the estimate's normal and the profile's over the focal lengths the data
   /// support; added to the normal's variance as a 95 % half-width (docs/estimate.md section 4).
