@@ -688,6 +688,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     // A plane that lost most of its tracks as outliers was not one surface (two faces one
     // homography carried at the pair frame, edges, shadows): what is left of it says little.
     const bool mixed = j < static_cast<int>(r.plane_relabelled.size()) && 2 * r.plane_relabelled[j] > r.plane_tracks[j];
+    const int left = j < static_cast<int>(r.plane_tracks.size()) ? r.plane_tracks[j] - r.plane_relabelled[j] : 0;
     // A plane with a direction that one of its tracks alone decides (the jackknife's leverage 1,
     // PlaneBatchBound::jackknife_N) has nothing that tests it there.
     const bool single = j < static_cast<int>(b.jackknife_N.size()) && !std::isfinite(b.jackknife_N[j]);
@@ -706,7 +707,8 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
                                                             ? fmt::format(", turning {:.1f} deg over the supported focal lengths",
                                                                           r.plane_profile_spread_deg[j])
                                                             : "")
-                                          : fmt::format("plane {} is in the null space (e.g. pure rotation: no parallax)", j));
+                                          : left < 3 ? fmt::format("plane {}: {} of its tracks left (too few to place it)", j, left)
+                                                     : fmt::format("plane {} is in the null space (e.g. pure rotation: no parallax)", j));
   }
   for (int c = 0; c < 4; ++c) {
     if (!r.camera_free[c]) continue;
