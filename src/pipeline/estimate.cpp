@@ -478,6 +478,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   }
   stageDone(&r.seconds.filter);
   if (!r.online.ended.empty()) say("warning: " + r.online.ended);
+  if (!r.online.pass_stopped.empty()) say("warning: the filter's " + r.online.pass_stopped);
   if (o.refine.enabled && r.online.ok()) {
     // The refinement covers the frames the filter estimated.
     Tracks covered;

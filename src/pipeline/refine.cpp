@@ -701,7 +701,8 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     else if (single && r.translation_significant && rotates && b.normal_estimable[j])
       why.push_back(fmt::format("plane {}: one of its tracks alone decides its normal (no other track tests it)", j));
     else if (!det && r.translation_significant && rotates)
-      why.push_back(b.normal_estimable[j] ? fmt::format("plane {} normal sd {:.1f} deg (limit {:.0f} deg){}", j, sd, kDeterminedNormalSdDeg,
+      why.push_back(b.normal_estimable[j] ? fmt::format("plane {} normal sd {} deg (limit {:.0f} deg){}", j,
+                                                        sd > 180.0 ? std::string("above 180") : fmt::format("{:.1f}", sd), kDeterminedNormalSdDeg,
                                                         j < static_cast<int>(r.plane_profile_spread_deg.size()) &&
                                                                 r.plane_profile_spread_deg[j] > 0
                                                             ? fmt::format(", turning {:.1f} deg over the supported focal lengths",

@@ -536,6 +536,9 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
   std::vector<Eigen::Vector3d> N_start = startPlanes(o, beta0, m);
   const double nz0 = N_start[0].z();  // the scale gauge's N_Z (startPlanes)
   ResidualSeries series;
+  // The last completed pass and its residuals: a later pass that stops falls back to it.
+  TrackFilterResult kept;
+  ResidualSeries kept_series;
   for (int pass = 1; pass <= o.passes; ++pass) {
     res.frames.clear();
     res.stopped.clear();
@@ -714,11 +717,24 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     res.plane_rms_px.resize(planes_in);
     for (int j = 0; j < planes_in; ++j) res.plane_rms_px[j] = cnt[j] ? std::sqrt(sum2[j] / cnt[j]) : 0.0;
     res.passes = pass;
-    if (!res.ok()) break;
+    if (!res.ok()) {
+      // A later pass starts from the last one's end, which can sit where its own start diverges
+      // (the ViSP mbt/cube: pass 1 ran every frame from a start at its focal grid's end, pass 2
+      // went through infinite focal length at frame 23). The completed pass stands, and says so.
+      if (pass > 1) {
+        const std::string why = fmt::format("pass {} stopped at {}; the result is pass {}'s", pass, res.stopped, pass - 1);
+        res = std::move(kept);
+        series = std::move(kept_series);
+        res.pass_stopped = why;
+      }
+      break;
+    }
     const TrackFrame& fin = res.frames.back();
     res.pass_focal_px.push_back(s / fin.beta);
     res.pass_N.push_back(fin.N);
     if (last_pass) break;
+    kept = res;
+    kept_series = series;
     beta_start = known_focal ? beta0 : fin.beta;
     N_start.assign(fin.N.begin(), fin.N.begin() + m);  // the late planes join again where they did
   }

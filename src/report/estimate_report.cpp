@@ -260,6 +260,8 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   // Final focal length and normals of every pass (--passes): their spread is an honest measure
   // of how well the sequence determines them, which the filter's own sd does not capture.
   j["passes"] = res.passes;
+  // A later pass that stopped: the result is the pass before it (TrackFilterResult::pass_stopped).
+  j["pass_stopped"] = r.result->pass_stopped.empty() ? nlohmann::json(nullptr) : nlohmann::json(r.result->pass_stopped);
   j["pass_focal_px"] = res.pass_focal_px;
   nlohmann::json pn = nlohmann::json::array();
   for (const auto& Ns : res.pass_N) {

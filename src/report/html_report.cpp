@@ -197,6 +197,8 @@ std::vector<std::string> notDeterminedFindings(const nlohmann::json& s) {
     out.push_back("Not determined: " + s["not_determined_why"].get<std::string>() + ".");
   if (s.contains("ended_early") && s["ended_early"].is_string() && !s["ended_early"].get<std::string>().empty())
     out.push_back("The run ended early: " + s["ended_early"].get<std::string>());
+  if (s.contains("pass_stopped") && s["pass_stopped"].is_string() && !s["pass_stopped"].get<std::string>().empty())
+    out.push_back("The filter's " + s["pass_stopped"].get<std::string>() + ".");
   return out;
 }
 

@@ -179,7 +179,10 @@ struct TrackFilterResult {
   /// Non-empty when the tracks on the planes ran out before the last frame (after at least 10
   /// frames): the result covers the frames before it and is valid (ok()); this says where and why.
   std::string ended;
-  int passes = 1;                    ///< passes run
+  int passes = 1;                    ///< passes completed (the result is the last one's)
+  /// Non-empty when a later pass stopped (a numerical failure, beta <= 0): which, where and why;
+  /// the result is then the pass before it, complete and valid (ok()).
+  std::string pass_stopped;
   std::vector<double> pass_focal_px; ///< final focal length of each pass
   std::vector<std::vector<Eigen::Vector3d>> pass_N;  ///< final planes of each pass
   /// The motion's process noise (TrackFilterOptions::q_from_data): the tracks' per-frame image
