@@ -638,6 +638,24 @@ TEST(Adaptive, NothingMovingSaysSo) {
   } catch (const NoPlaneFound& e) {
     EXPECT_NE(std::string(e.what()).find("nothing moves"), std::string::npos) << e.what();
   }
+  // The same still scene with 12 tracks that wander on their own (people walking before a fixed
+  // camera): most of the scene is still and what moves is no plane, and the message says both.
+  std::uniform_real_distribution<double> step(-3.0, 3.0);
+  for (int i = 100; i < 112; ++i) {
+    Eigen::Vector2d x(100 + 30 * (i - 100), 300);
+    for (int k = 0; k < 60; ++k) {
+      t.frames[k].push_back({i, x});
+      x += Eigen::Vector2d(step(rng), step(rng));
+    }
+  }
+  try {
+    estimate(t, EstimateOptions{});
+    FAIL() << "a still scene with wandering tracks was estimated";
+  } catch (const NoPlaneFound& e) {
+    std::printf("%s\n", e.what());
+    EXPECT_NE(std::string(e.what()).find("no moving plane: "), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("are still (a still camera)"), std::string::npos) << e.what();
+  }
 }
 
 TEST(Adaptive, TheReferenceFrameIsWhereTheSceneStartsToMoveAndLaterStillFramesAreHeld) {

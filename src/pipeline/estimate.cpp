@@ -360,8 +360,18 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
                                      "stretch where the camera or the object moves (--first, --last)",
                                      moving, total, tracks.first_frame, still_px, tracks.numFrames()));
     std::string cands;
-    for (const auto& c : pf.candidates)
+    std::size_t still = 0;
+    for (const auto& c : pf.candidates) {
       cands += fmt::format("{}{} {} tracks", cands.empty() ? "" : ", ", vision::toString(c.verdict), c.members.size());
+      if (c.verdict == vision::PlaneVerdict::Static) still += c.members.size();
+    }
+    // Most of the scene still (a still camera) and what moves is no plane: people walking before
+    // a fixed camera (opencv-doc vtest.avi: 273 of 330 tracks still), leaves in the wind.
+    if (2 * still >= static_cast<std::size_t>(total))
+      throw NoPlaneFound(fmt::format("no moving plane: {} of the {} tracks of frame {} are still (a still camera), and the {} "
+                                     "that move form no plane of {} tracks (candidates: {}); a moving object needs that many "
+                                     "tracks on one of its planes: try --plane-roi around it or --min-plane-tracks",
+                                     still, total, tracks.first_frame, moving, o.finder.min_plane_tracks, cands));
     throw NoPlaneFound(fmt::format("no plane with at least {} tracks found in the reference frame (tracks: {}; candidates: {}; "
                                    "try --min-plane-tracks, --ransac-px or --plane-roi)",
                                    o.finder.min_plane_tracks, tracks.frames.empty() ? 0 : tracks.frames[0].size(),
