@@ -627,11 +627,16 @@ TEST(Refine, AnUndeterminedFocalLengthGetsItsProfileInterval) {
 namespace rsfm {
 namespace {
 
-TEST(Refine, AFailedRefinementKeepsTheOnlineEstimateAndSaysWhy) {
-  const Synthetic s = makeTracks(11, 0.3, Eigen::Vector2d::Zero(), 0.0, 0.0, 30);
+/// The pipeline up to the filter (no refinement), for a refine() call of the test's own.
+EstimateResult filterOnly(const Synthetic& s) {
   EstimateOptions o;
   o.refine.enabled = false;
-  EstimateResult r = estimate(s.tracks, o);
+  return estimate(s.tracks, o);
+}
+
+TEST(Refine, AFailedRefinementKeepsTheOnlineEstimateAndSaysWhy) {
+  const Synthetic s = makeTracks(11, 0.3, Eigen::Vector2d::Zero(), 0.0, 0.0, 30);
+  EstimateResult r = filterOnly(s);
   ASSERT_TRUE(r.online.ok());
   // An online estimate that predicts nothing (non-finite focal length): no start to refine from.
   TrackFilterResult broken = r.online;
@@ -645,13 +650,6 @@ TEST(Refine, AFailedRefinementKeepsTheOnlineEstimateAndSaysWhy) {
   EXPECT_EQ(&r.labels(), &r.planes.labels);
 }
 
-}  // namespace
-}  // namespace rsfm
-
-
-namespace rsfm {
-namespace {
-
 TEST(Refine, APlaneLeftWithThreeTracksIsNotDetermined) {
   // The cube scene's three faces; the last face keeps three of its tracks (the others marked
   // outliers, as the finder's or the refinement's relabelling can leave a plane). Each of the
@@ -660,21 +658,24 @@ TEST(Refine, APlaneLeftWithThreeTracksIsNotDetermined) {
   // faces stay determined. With two tracks left the reason says so (it was "in the null space
   // (e.g. pure rotation)").
   const Synthetic s = makeTracks(11, 0.3, Eigen::Vector2d::Zero(), 0.0, 0.0, 60);
-  EstimateOptions o;
-  o.refine.enabled = false;
-  const EstimateResult r = estimate(s.tracks, o);
+  const EstimateResult r = filterOnly(s);
   ASSERT_TRUE(r.online.ok());
   ASSERT_EQ(r.online.planes, 3);
-  std::vector<int> labels = r.planes.labels;
-  const int L = *std::max_element(labels.begin(), labels.end());
+  const int L = *std::max_element(r.planes.labels.begin(), r.planes.labels.end());
   ASSERT_GE(L, 0);
   const int j = r.online.plane_of_label[L];
   ASSERT_NE(j, 0);  // not the gauge plane (its two free components)
-  int kept = 0;
-  for (int& l : labels)
-    if (l == L && ++kept > 3) l = -1;
-  ASSERT_GT(kept, 3);
-  const RefineResult f = refine(s.tracks, labels, r.online, r.filter_used);
+  // The finder's labels with plane L cut to its first n tracks (the rest outliers); its tracks before.
+  auto cutTo = [&](int n, int* had) {
+    std::vector<int> labels = r.planes.labels;
+    *had = 0;
+    for (int& l : labels)
+      if (l == L && ++*had > n) l = -1;
+    return labels;
+  };
+  int had = 0;
+  const RefineResult f = refine(s.tracks, cutTo(3, &had), r.online, r.filter_used);
+  ASSERT_GT(had, 3);
   ASSERT_TRUE(f.ok) << f.message;
   ASSERT_EQ(f.plane_determined.size(), 3u);
   ASSERT_EQ(f.jackknife_plane_factor.size(), 3u);
@@ -688,10 +689,7 @@ TEST(Refine, APlaneLeftWithThreeTracksIsNotDetermined) {
       EXPECT_TRUE(std::isfinite(f.jackknife_plane_factor[i])) << i;
     }
   // Two tracks: the plane is in the bound's null space, and the reason names the tracks left.
-  kept = 0;
-  for (int& l : labels)
-    if (l == L && ++kept > 2) l = -1;
-  const RefineResult f2 = refine(s.tracks, labels, r.online, r.filter_used);
+  const RefineResult f2 = refine(s.tracks, cutTo(2, &had), r.online, r.filter_used);
   ASSERT_TRUE(f2.ok) << f2.message;
   std::printf("two tracks left on plane %d: %s\n", j, f2.why.c_str());
   EXPECT_FALSE(f2.plane_determined[j]);

@@ -85,10 +85,11 @@ void planeJackknife(const PlaneBatchData& data, const std::vector<int>& iN, cons
   out->jackknife_N.assign(m, 1.0);
   out->jackknife_ratio_N.assign(m, 0.0);
   std::vector<M3> It;
-  std::vector<V3> st, d;
+  std::vector<V3> st, d, w;
   It.reserve(P);
   st.reserve(P);
   d.reserve(P);
+  w.reserve(P);
   for (int j = 0; j < m; ++j) {
     int kept[3], k = 0;
     for (int e = 0; e < 3; ++e)
@@ -123,7 +124,8 @@ void planeJackknife(const PlaneBatchData& data, const std::vector<int>& iN, cons
     const M3 L = llt.matrixL();
     bool decisive = false;
     Eigen::SelfAdjointEigenSolver<M3> eh(k);
-    for (int t = 0; t < T && !decisive; ++t) {
+    w.clear();
+    for (int t = 0; t < T; ++t) {
       // The track's leverages: the eigenvalues of H = L^-1 I_t L^-T, in [0, 1]; 1 is a direction
       // that this track alone determines.
       const M3 Lt = L.triangularView<Eigen::Lower>().solve(It[t]);
@@ -133,10 +135,10 @@ void planeJackknife(const PlaneBatchData& data, const std::vector<int>& iN, cons
         decisive = true;
         break;
       }
-      // d_t, whitened: L^T (I - I_t)^-1 s_t = (1 - H)^-1 L^-1 s_t.
-      const V3 w = L.triangularView<Eigen::Lower>().solve(st[t]);
+      // d_t, whitened: L^T (I - I_t)^-1 s_t = (1 - H)^-1 w_t, w_t = L^-1 s_t.
+      w.push_back(L.triangularView<Eigen::Lower>().solve(st[t]));
       const M3 IH = M3::Identity(k, k) - H;
-      d.push_back(Eigen::LDLT<M3>(IH).solve(w));
+      d.push_back(Eigen::LDLT<M3>(IH).solve(w.back()));
     }
     if (decisive) {
       out->jackknife_N[j] = out->jackknife_ratio_N[j] = INFINITY;
@@ -149,11 +151,8 @@ void planeJackknife(const PlaneBatchData& data, const std::vector<int>& iN, cons
     for (const auto& x : d) V.noalias() += (x - mean) * (x - mean).transpose();
     V *= static_cast<double>(T - 1) / T;
     // The sandwich in the same held-motions problem, V_0 = sum_t (I^-1 s_t)(I^-1 s_t)^T (whitened:
-    // the L^-1 s_t): the jackknife's excess over it is the leverage the sandwich misses.
-    for (int t = 0; t < T; ++t) {
-      const V3 w = L.triangularView<Eigen::Lower>().solve(st[t]);
-      V0.noalias() += w * w.transpose();
-    }
+    // the w_t): the jackknife's excess over it is the leverage the sandwich misses.
+    for (const auto& x : w) V0.noalias() += x * x.transpose();
     Eigen::SelfAdjointEigenSolver<M3> ev(V, Eigen::EigenvaluesOnly), e0(V0, Eigen::EigenvaluesOnly);
     if (ev.info() != Eigen::Success || e0.info() != Eigen::Success) continue;
     const double vj = std::max(0.0, ev.eigenvalues().maxCoeff()), v0 = std::max(0.0, e0.eigenvalues().maxCoeff());
@@ -532,19 +531,20 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
         if (c0[a] > 0) {
           ratio[a] = std::isfinite(V(a, a)) ? V(a, a) / c0[a] : 0.0;
           f[a] = std::sqrt(std::max(1.0, out.cov(glob[a], glob[a]) / c0[a]));
-          for (int j = 0; j < m; ++j)
-            for (int e = 0; e < 3; ++e)
-              if (iN[3 * j + e] == glob[a])
-                sandwich_N[j] = std::max({sandwich_N[j], ratio[a], Vs.size() && std::isfinite(Vs(a, a)) ? Vs(a, a) / c0[a] : 0.0});
         }
       for (int a = 0; a < q; ++a) {
         if (glob[a] == iBeta) {
           out.clustered_beta = f[a];
           out.clustered_beta_ratio = ratio[a];
         }
+        // The region sandwich's ratio (0 without regions), for the planes' jackknife.
+        const double ratio_s = c0[a] > 0 && Vs.size() && std::isfinite(Vs(a, a)) ? Vs(a, a) / c0[a] : 0.0;
         for (int j = 0; j < m; ++j)
           for (int e = 0; e < 3; ++e)
-            if (iN[3 * j + e] == glob[a]) out.clustered_N[j] = std::max(out.clustered_N[j], f[a]);
+            if (iN[3 * j + e] == glob[a]) {
+              out.clustered_N[j] = std::max(out.clustered_N[j], f[a]);
+              sandwich_N[j] = std::max({sandwich_N[j], ratio[a], ratio_s});
+            }
         for (int e = 0; e < 4; ++e)
           if (iC[e] == glob[a]) out.clustered_camera[e] = f[a];
       }
