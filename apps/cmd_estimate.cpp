@@ -414,7 +414,7 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
                               {"still_px", e.est.still_px}};
   nlohmann::json tries = nlohmann::json::array();
   for (const auto& tr : pf.pair_frame_tries)
-    tries.push_back({{"frame", reference + tr.frame}, {"planes", tr.planes}, {"tracks_in_planes", tr.tracks_in_planes}});
+    tries.push_back({{"frame", reference + tr.frame}, {"planes", tr.planes}, {"tracks_in_planes", tr.tracks_in_planes}, {"loses_plane", tr.loses_plane}});
   const vision::PlaneTolerances& tol = pf.tolerances;
   rep.extra["plane_finding"] = {{"pair_frame", reference + pf.pair_frame}, {"pair_frames_tried", tries}, {"candidates", cands},
                                 {"tracking_noise_px", tol.noise_px > 0 ? nlohmann::json(tol.noise_px) : nlohmann::json(nullptr)},

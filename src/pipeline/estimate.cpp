@@ -380,7 +380,8 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   {
     std::string tried;
     for (const auto& tr : pf.pair_frame_tries)
-      tried += fmt::format("{}{}: {}/{}", tried.empty() ? "" : ", ", tracks.frameNumber(tr.frame), tr.planes, tr.tracks_in_planes);
+      tried += fmt::format("{}{}: {}/{}{}", tried.empty() ? "" : ", ", tracks.frameNumber(tr.frame), tr.planes, tr.tracks_in_planes,
+                           tr.loses_plane ? " (loses a plane)" : "");
     const vision::PlaneTolerances& tol = pf.tolerances;
     std::string line = fmt::format("planes: {} accepted (pair frame {}; planes/tracks at the frames tried: {}; tracking noise {} px: "
                                    "tolerances RANSAC {:.2f}, stray {:.2f}, static {:.2f} px{}):",

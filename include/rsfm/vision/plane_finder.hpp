@@ -7,6 +7,7 @@
 // Tracks born after the reference frame join the plane whose homographies carry them.
 #include <opencv2/core.hpp>
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -101,12 +102,16 @@ struct PlaneFinding {
                                        ///< planes, or twice the tracks on as many, were found
   /// The pair frames tried, in order (issue 14 item 2): the share-of-live-tracks frame, then the
   /// frames of the moving tracks' largest median motion and of 3/4, 1/2, 1/4 of it. pair_frame is
-  /// the first with the most accepted planes; once max_planes are accepted, no further frame is
-  /// tried. Empty with ROIs.
+  /// the first with the most accepted planes, among frames that find again the planes of the
+  /// frame they would replace (see loses_plane); once max_planes are accepted, no further frame
+  /// is tried. Empty with ROIs.
   struct PairTry {
     int frame = -1;
     int planes = 0;            ///< accepted planes (at most max_planes)
     int tracks_in_planes = 0;  ///< their reference tracks
+    /// More planes than the frame that had won, but not its planes found again (one of them that
+    /// can be seen there has at most half of its live tracks in one plane): not chosen.
+    bool loses_plane = false;
   };
   std::vector<PairTry> pair_frame_tries;
   int numPlanes() const;
@@ -114,6 +119,14 @@ struct PlaneFinding {
 };
 
 /// Finds planes in `tracks`. Throws std::invalid_argument on options out of range.
+/// Whether a search's accepted planes `found` find again the accepted planes `won` of the search
+/// they would replace (the pair frame's choice, docs/estimate.md section 1 step 1): each plane of
+/// `won` with at least min_plane_tracks members alive (`alive(id)`: the track is seen at the new
+/// search's pair frame) must have more than half of those live members in one plane of `found`.
+/// A plane with fewer alive cannot be found there and is not asked for.
+bool findsPlanesAgain(const std::vector<FoundPlane>& won, const std::vector<FoundPlane>& found,
+                      const std::function<bool(int)>& alive, int min_plane_tracks);
+
 PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& options = {});
 
 }  // namespace rsfm::vision
