@@ -119,6 +119,24 @@ struct PlaneFinding {
 };
 
 /// Finds planes in `tracks`. Throws std::invalid_argument on options out of range.
+/// Plane+parallax test (Irani & Anandan [IA96]) of a second plane against the main one: points
+/// moving rigidly with it satisfy x' ~ H1 x + parallax along lines through one epipole e'. RANSAC
+/// over pairs of the points for e'; returns the fraction of the points with parallax (off H1 x by
+/// at least 2 tol_px) within tol_px of their epipolar line (-1 when fewer than 5 show parallax).
+/// Pixels, reference frame -> pair frame.
+double sameMotionFraction(const cv::Matx33d& H1, const std::vector<cv::Point2d>& x, const std::vector<cv::Point2d>& xp,
+                          double tol_px, unsigned seed);
+
+/// The same test across planes (docs/estimate.md section 1 step 4): a rigid scene's planes
+/// share one epipole, while sameMotionFraction fits each plane its own, which a small group's
+/// nearly parallel parallax vectors always allow (a far epipole). Fits the epipole of the plane
+/// `by` (by_x -> by_xp) as sameMotionFraction does and returns the fraction of the parallax points
+/// of x -> xp within tol_px of the epipolar lines through it; -1 when either has fewer than 5
+/// parallax points or `by` fits no epipole of its own (fewer than min_fraction of its points).
+double epipoleAgreement(const cv::Matx33d& H1, const std::vector<cv::Point2d>& by_x, const std::vector<cv::Point2d>& by_xp,
+                        const std::vector<cv::Point2d>& x, const std::vector<cv::Point2d>& xp, double tol_px,
+                        double min_fraction, unsigned seed);
+
 /// Whether a search's accepted planes `found` find again the accepted planes `won` of the search
 /// they would replace (the pair frame's choice, docs/estimate.md section 1 step 1): each plane of
 /// `won` with at least min_plane_tracks members alive (`alive(id)`: the track is seen at the new
