@@ -110,10 +110,6 @@ bool fitH(const std::vector<cv::Point2d>& a, const std::vector<cv::Point2d>& b, 
   return true;
 }
 
-}  // namespace
-
-namespace {
-
 /// The points of x -> xp that show parallax against H1 (off H1 x by at least 2 tol_px): H1 x in
 /// *a and x' in *b (homogeneous, pixels).
 void parallaxPoints(const cv::Matx33d& H1, const std::vector<cv::Point2d>& x, const std::vector<cv::Point2d>& xp,
@@ -616,9 +612,10 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
     // parallel parallax vectors always allow (a far epipole): opencv-doc box.mp4 at 320 x 240,
     // 13 tracks of the arm that moved 12 px while the box moved 77-96 px passed with 0.67 and,
     // as a third plane, sent the start to its focal grid's end. A rigid scene's planes share one
-    // epipole: the largest plane that passed (after the main one) gives it, and each smaller one
-    // that passed must agree with it at its own pair frame too (the largest one's tracks alive
-    // there; a plane of the tracks lost before the pair frame is found at an earlier frame).
+    // epipole: each smaller plane that passed must have same_motion_fraction of its parallax
+    // points on the lines of an epipole that the largest one that passed (after the main one)
+    // accepts too, at the smaller one's pair frame (the largest one's tracks alive there; a plane
+    // of the tracks lost before the pair frame is found at an earlier frame).
     {
       int second = -1;
       for (size_t j = 0; j < cands.size(); ++j) {
@@ -723,9 +720,8 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
       std::vector<FoundPlane> cs = searchAt(tries[t]);
       PlaneFinding::PairTry s = score(cs);
       s.frame = tries[t];
-      res.pair_frame_tries.push_back(s);
       s.loses_plane = s.planes > best.planes && !findsAgain(cands, cs, tries[t]);
-      res.pair_frame_tries.back().loses_plane = s.loses_plane;
+      res.pair_frame_tries.push_back(s);
       if (s.planes > best.planes && !s.loses_plane) {
         best = s;
         cands = std::move(cs);
