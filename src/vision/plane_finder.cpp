@@ -583,6 +583,14 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
           }
         }
     }
+    // The reference -> frame-k positions of the `members` seen in frame k (the same-motion tests).
+    auto pairPoints = [&](const std::vector<int>& members, int k, std::vector<cv::Point2d>* a, std::vector<cv::Point2d>* b) {
+      for (int id : members)
+        if (const TrackPoint* pk = tracks.find(k, id)) {
+          a->push_back(pt(*tracks.find(0, id)));
+          b->push_back(pt(*pk));
+        }
+    };
     // Static planes; then the main plane = the largest moving one; others must share its motion.
     int main_plane = -1;
     for (size_t j = 0; j < cands.size(); ++j) {
@@ -599,11 +607,7 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
       if (c.verdict != PlaneVerdict::Accepted || static_cast<int>(j) == main_plane) continue;
       std::vector<cv::Point2d> a, b;
       const int cp = c.pair_frame;  // the main plane's homography is known in every frame
-      for (int id : c.members)
-        if (tracks.find(cp, id)) {
-          a.push_back(pt(*tracks.find(0, id)));
-          b.push_back(pt(*tracks.find(cp, id)));
-        }
+      pairPoints(c.members, cp, &a, &b);
       c.same_motion_fraction = sameMotionFraction(cands[main_plane].H[cp], a, b, tol.motion_px, o.seed + 17u * j);
       if (c.same_motion_fraction >= 0 && c.same_motion_fraction < o.same_motion_fraction)
         c.verdict = PlaneVerdict::OtherMotion;
@@ -629,16 +633,8 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
         if (static_cast<int>(j) == second || c.verdict != PlaneVerdict::Accepted || c.same_motion_fraction < 0) continue;
         const int cp = c.pair_frame;
         std::vector<cv::Point2d> sa, sb, a, b;
-        for (int id : cands[second].members)
-          if (tracks.find(cp, id)) {
-            sa.push_back(pt(*tracks.find(0, id)));
-            sb.push_back(pt(*tracks.find(cp, id)));
-          }
-        for (int id : c.members)
-          if (tracks.find(cp, id)) {
-            a.push_back(pt(*tracks.find(0, id)));
-            b.push_back(pt(*tracks.find(cp, id)));
-          }
+        pairPoints(cands[second].members, cp, &sa, &sb);
+        pairPoints(c.members, cp, &a, &b);
         const double agree = epipoleAgreement(cands[main_plane].H[cp], sa, sb, a, b, tol.motion_px, o.same_motion_fraction,
                                               o.seed + 17u * static_cast<unsigned>(second));
         if (agree < 0) continue;

@@ -118,7 +118,6 @@ struct PlaneFinding {
   int count(int label) const;
 };
 
-/// Finds planes in `tracks`. Throws std::invalid_argument on options out of range.
 /// Plane+parallax test (Irani & Anandan [IA96]) of a second plane against the main one: points
 /// moving rigidly with it satisfy x' ~ H1 x + parallax along lines through one epipole e'. RANSAC
 /// over pairs of the points for e'; returns the fraction of the points with parallax (off H1 x by
@@ -129,10 +128,11 @@ double sameMotionFraction(const cv::Matx33d& H1, const std::vector<cv::Point2d>&
 
 /// The same test across planes (docs/estimate.md section 1 step 4): a rigid scene's planes
 /// share one epipole, while sameMotionFraction fits each plane its own, which a small group's
-/// nearly parallel parallax vectors always allow (a far epipole). Fits the epipole of the plane
-/// `by` (by_x -> by_xp) as sameMotionFraction does and returns the fraction of the parallax points
-/// of x -> xp within tol_px of the epipolar lines through it; -1 when either has fewer than 5
-/// parallax points or `by` fits no epipole of its own (fewer than min_fraction of its points).
+/// nearly parallel parallax vectors always allow (a far epipole). Over the epipoles through pairs
+/// of both planes' parallax points (RANSAC), those that the plane `by` (by_x -> by_xp) accepts
+/// (min_fraction of its parallax points within tol_px of their lines): the largest fraction of
+/// the parallax points of x -> xp within tol_px of their lines. -1 when either has fewer than 5
+/// parallax points or no sampled epipole is accepted by `by`.
 double epipoleAgreement(const cv::Matx33d& H1, const std::vector<cv::Point2d>& by_x, const std::vector<cv::Point2d>& by_xp,
                         const std::vector<cv::Point2d>& x, const std::vector<cv::Point2d>& xp, double tol_px,
                         double min_fraction, unsigned seed);
@@ -145,6 +145,7 @@ double epipoleAgreement(const cv::Matx33d& H1, const std::vector<cv::Point2d>& b
 bool findsPlanesAgain(const std::vector<FoundPlane>& won, const std::vector<FoundPlane>& found,
                       const std::function<bool(int)>& alive, int min_plane_tracks);
 
+/// Finds planes in `tracks`. Throws std::invalid_argument on options out of range.
 PlaneFinding findPlanes(const Tracks& tracks, const PlaneFinderOptions& options = {});
 
 }  // namespace rsfm::vision
