@@ -497,8 +497,10 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
                                            : fmt::format("+- {:.1f} px{}", s["focal_sd_px"].get<double>(),
                                                          r.refined.ok ? " (refined)" : ""));
     for (const auto& a : s["angles_between_planes_deg"])
-      fmt::print(stderr, ", angle between planes {} and {}: {:.1f} deg{}", a["planes"][0].get<int>(), a["planes"][1].get<int>(),
-                 a["angle_deg"].get<double>(), a.contains("determined") && !a["determined"].get<bool>() ? " (not determined)" : "");
+      fmt::print(stderr, ", angle between planes {} and {}: {:.1f}{} deg{}", a["planes"][0].get<int>(), a["planes"][1].get<int>(),
+                 a["angle_deg"].get<double>(),
+                 a.contains("sd_deg") && a["sd_deg"].is_number() ? fmt::format(" +- {:.1f}", a["sd_deg"].get<double>()) : std::string(),
+                 a.contains("determined") && !a["determined"].get<bool>() ? " (not determined)" : "");
     fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum{}, planes.csv, poses.csv, labels.csv, report.html{}{}{}\n",
                e.shown_out.empty() ? e.out : e.shown_out,
                r.refined.ok ? ", trajectory_online.tum" : "",

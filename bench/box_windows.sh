@@ -3,7 +3,7 @@
 # the whole video, default options: what a user who picks any stretch of it would see
 # (docs/regimes.md, "box.mp4 across the whole video"). The regime bench scores ten 150-frame
 # windows starting at 0-18; this covers the rest. Prints a Markdown table, one row per window:
-# exit code, planes, which are determined, the determined angles between planes, the focal length
+# exit code, planes, which are determined, the determined angles between planes with their sds, the focal length
 # and its sd (or "not determined" with the supported interval), and the start of
 # not_determined_why. Usage: bash bench/box_windows.sh BUILD_DIR [LENGTH [STEP [FIRST]]]
 # (defaults 150 frames, every 25 frames from 20). Needs opencv-doc (box.mp4.gz) or the regime
@@ -30,7 +30,8 @@ if rc != 0:
     sys.exit(0)
 s = json.load(open(path))
 det = s.get("plane_determined") or []
-ang = ["%.1f" % a["angle_deg"] for a in s.get("angles_between_planes_deg") or [] if a.get("determined")]
+ang = ["%.1f +- %.1f" % (a["angle_deg"], a["sd_deg"]) if a.get("sd_deg") is not None else "%.1f" % a["angle_deg"]
+       for a in s.get("angles_between_planes_deg") or [] if a.get("determined")]
 if s.get("focal_determined"):
     f = "%.1f +- %.1f" % (s["focal_px"], s["focal_sd_px"])
 else:

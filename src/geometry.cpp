@@ -35,6 +35,23 @@ double normalAngle(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
   return std::acos(std::clamp(c, 0.0, 1.0));
 }
 
+double normalAngle(const Eigen::Vector3d& a, const Eigen::Vector3d& b, Eigen::Matrix<double, 1, 6>* J) {
+  if (J) J->setZero();
+  const Eigen::Vector3d x = a.cross(b);
+  const double s = x.norm(), c = a.dot(b);
+  if (!std::isfinite(s) || !std::isfinite(c) || (s == 0.0 && c == 0.0)) return 0.0;
+  const double sign = c < 0 ? -1.0 : 1.0;  // the lines' angle: b's sign follows a's
+  const double theta = std::atan2(s, sign * c);
+  if (J && s > 0.0) {
+    // d theta = (|c| ds - s sign dc) / (s^2 + c^2), with ds = (a x b) . d(a x b) / s:
+    // ds/da = b x (a x b) / s, ds/db = (a x b) x a / s; dc/da = b, dc/db = a.
+    const double q = s * s + c * c;
+    J->leftCols<3>() = ((sign * c / s) * b.cross(x) - s * sign * b).transpose() / q;
+    J->rightCols<3>() = ((sign * c / s) * x.cross(a) - s * sign * a).transpose() / q;
+  }
+  return theta;
+}
+
 Eigen::Matrix3d rotationY(double theta) {
   const double c = std::cos(theta), s = std::sin(theta);
   Eigen::Matrix3d R;

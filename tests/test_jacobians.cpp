@@ -5,6 +5,8 @@
 #include <random>
 
 #include "jacobian_checker.hpp"
+#include "rsfm/geometry.hpp"
+#include "rsfm/pipeline/track_filter.hpp"
 #include "rsfm/models/plane_model.hpp"
 #include "rsfm/models/point_model.hpp"
 #include "rsfm/models/radial_camera.hpp"
@@ -297,6 +299,93 @@ TEST(RadialCameraJacobian, AtTheCentreAndWithoutDistortion) {
 TEST(RadialCameraJacobian, NearTheFold) {
   // k1 = -0.25: the radial map folds at r = 1.155 (pinhole units); just inside it.
   checkRadialCamera({0.0, 0.0, -0.25, 0.0}, 1.0, {0.8, 0.75}, "near the fold");
+}
+
+// ---- the angle between two planes' normals (the sd of summary.json's angles, planeAngle) ----
+void checkNormalAngle(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const std::string& what, double step = 1e-6) {
+  auto f = [](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+    *y = Eigen::VectorXd::Constant(1, normalAngle(Eigen::Vector3d(x.head<3>()), Eigen::Vector3d(x.tail<3>()), nullptr));
+    return true;
+  };
+  Eigen::Matrix<double, 1, 6> J;
+  Eigen::VectorXd x(6);
+  x << a, b;
+  const double theta = normalAngle(a, b, &J);
+  EXPECT_NEAR(theta, normalAngle(a, b), 1e-12) << what;  // the same angle as without the gradient
+  expectJacobian(f, x, J, 1e-6, what, step);
+  EXPECT_NEAR(J.leftCols<3>().dot(a), 0.0, 1e-9) << what;  // only the directions count
+  EXPECT_NEAR(J.rightCols<3>().dot(b), 0.0, 1e-9) << what;
+}
+TEST(NormalAngleJacobian, Generic) { checkNormalAngle({0.3, -0.2, 1.1}, {1.2, 0.4, 0.7}, "generic, unequal lengths"); }
+TEST(NormalAngleJacobian, AntiParallelSide) {
+  // The vectors 120 deg apart: the lines' angle is 60 deg, b's sign follows a's.
+  checkNormalAngle({1, 0, 0}, {std::cos(2.0944), std::sin(2.0944), 0.0}, "vectors 120 deg apart");
+}
+TEST(NormalAngleJacobian, NearParallel) {
+  // 1e-3 rad apart (a step far below the angle) and 1e-3 rad from anti-parallel.
+  checkNormalAngle({0, 0, 2}, {1e-3, 0, 1}, "1e-3 rad", 1e-8);
+  checkNormalAngle({0, 0, 2}, {1e-3, 0, -1}, "1e-3 rad from anti-parallel", 1e-8);
+}
+TEST(NormalAngleJacobian, NearTheFold) {
+  // 89.9 deg on either side of the fold at 90 deg (the lines' angle turns back there).
+  const double e = 0.1 * M_PI / 180;
+  checkNormalAngle({1, 0, 0}, {std::sin(e), std::cos(e), 0.0}, "89.9 deg", 1e-8);
+  checkNormalAngle({1, 0, 0}, {-std::sin(e), std::cos(e), 0.0}, "90.1 deg between the vectors", 1e-8);
+}
+TEST(NormalAngleJacobian, DegenerateInputGivesZero) {
+  Eigen::Matrix<double, 1, 6> J;
+  EXPECT_EQ(normalAngle({0, 0, 1}, {0, 0, 3}, &J), 0.0);  // parallel: a cone point
+  EXPECT_TRUE(J.isZero(0.0));
+  EXPECT_EQ(normalAngle({0, 0, 0}, {0, 0, 3}, &J), 0.0);
+  EXPECT_TRUE(J.isZero(0.0));
+  EXPECT_EQ(normalAngle({NAN, 0, 1}, {0, 0, 3}, &J), 0.0);
+  EXPECT_TRUE(J.isZero(0.0));
+}
+
+TEST(PlaneAngle, IntervalsFollowTheCovarianceAndStayInRange) {
+  TrackFrame f;
+  f.N = {{0, 0, 2}, {1, 0, 1}, {0, 1, 1e-3}};  // 45 deg, 90 deg, ~90 deg
+  const double v = std::pow(0.5 * M_PI / 180, 2);  // 0.5 deg per tangent direction of a unit normal
+  for (const auto& N : f.N) f.cov_N.push_back(v * N.squaredNorm() * Eigen::Matrix3d::Identity());
+  EXPECT_FALSE(planeAngle(f, 0, 1).has_sd);  // no cross-covariances: no sd
+  f.cov_N_pair.assign(3, Eigen::Matrix3d::Zero());
+  const PlaneAngle p01 = planeAngle(f, 0, 1);
+  ASSERT_TRUE(p01.has_sd);
+  EXPECT_NEAR(p01.angle_deg, 45.0, 1e-9);
+  // Independent normals, 0.5 deg along the angle's direction each: sqrt(0.5^2 + 0.5^2).
+  EXPECT_NEAR(p01.sd_deg, std::sqrt(0.5), 1e-6);
+  EXPECT_NEAR(p01.lo_deg, 45.0 - 1.96 * p01.sd_deg, 1e-9);
+  // Errors from one common rotation omega ~ N(0, v I) (dN = omega x N for both: the scene turns
+  // as a whole): the angle does not move, to first order.
+  auto skew = [](const Eigen::Vector3d& w) {
+    Eigen::Matrix3d S;
+    S << 0, -w.z(), w.y(), w.z(), 0, -w.x(), -w.y(), w.x(), 0;
+    return S;
+  };
+  TrackFrame h = f;
+  for (int j = 0; j < 3; ++j) h.cov_N[static_cast<std::size_t>(j)] = v * skew(h.N[static_cast<std::size_t>(j)]) * skew(h.N[static_cast<std::size_t>(j)]).transpose();
+  for (int b = 1; b < 3; ++b)
+    for (int a = 0; a < b; ++a)
+      h.cov_N_pair[static_cast<std::size_t>(planePairIndex(a, b))] =
+          v * skew(h.N[static_cast<std::size_t>(a)]) * skew(h.N[static_cast<std::size_t>(b)]).transpose();
+  EXPECT_LT(planeAngle(h, 0, 1).sd_deg, 1e-9);
+  EXPECT_LT(planeAngle(h, 0, 2).sd_deg, 1e-9);
+  // Next to the fold: the interval ends at 90.
+  const PlaneAngle p02 = planeAngle(f, 0, 2);
+  EXPECT_NEAR(p02.angle_deg, 90.0, 0.1);
+  EXPECT_EQ(p02.hi_deg, 90.0);
+  // Nearly parallel planes (0.2 deg apart, 0.5 deg errors): the interval reaches 0.
+  TrackFrame g;
+  g.N = {{0, 0, 1}, {std::sin(0.2 * M_PI / 180), 0, std::cos(0.2 * M_PI / 180)}};
+  g.cov_N = {v * Eigen::Matrix3d::Identity(), v * Eigen::Matrix3d::Identity()};
+  g.cov_N_pair = {Eigen::Matrix3d::Zero()};
+  const PlaneAngle pg = planeAngle(g, 0, 1);
+  EXPECT_EQ(pg.lo_deg, 0.0);
+  EXPECT_GT(pg.hi_deg, 0.2 + 1.96 * pg.sd_deg);  // the relative error's disc, not the linearization's
+  EXPECT_EQ(planePairIndex(0, 1), 0);
+  EXPECT_EQ(planePairIndex(0, 2), 1);
+  EXPECT_EQ(planePairIndex(1, 2), 2);
+  EXPECT_EQ(planePairIndex(0, 3), 3);
 }
 
 TEST(Models, InvalidRotationIsReported) {

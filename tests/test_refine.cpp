@@ -9,6 +9,7 @@
 #include <opencv2/core.hpp>
 #include <random>
 
+#include "rsfm/geometry.hpp"
 #include "rsfm/models/radial_camera.hpp"
 #include "rsfm/residual_correlation.hpp"
 #include "rsfm/units.hpp"
@@ -136,7 +137,44 @@ struct Coverage {
   int inside = 0, trials = 0;
   double mean_z2 = 0;
   double mean_inflation = 0;  ///< RefineResult::correlation_inflation
+  int angle_pairs = 0, angles_inside = 0;  ///< determined angles between planes; truth inside their 95 % interval
+  double cross_effect = 0;  ///< summed |sd without the planes' cross-covariances / sd - 1| (countAngles)
 };
+
+/// The true angle between the truth's faces nearest to record f's planes a and b (deg, between
+/// lines); -1 when both are nearest the same face.
+double trueAngleDeg(const std::vector<Eigen::Vector3d>& truth, const TrackFrame& f, int a, int b) {
+  auto nearest = [&](const Eigen::Vector3d& N) {
+    int best = 0;
+    for (int i = 1; i < static_cast<int>(truth.size()); ++i)
+      if (normalAngle(truth[static_cast<std::size_t>(i)], N) < normalAngle(truth[static_cast<std::size_t>(best)], N)) best = i;
+    return best;
+  };
+  const int ta = nearest(f.N[static_cast<std::size_t>(a)]), tb = nearest(f.N[static_cast<std::size_t>(b)]);
+  return ta == tb ? -1.0 : normalAngle(truth[static_cast<std::size_t>(ta)], truth[static_cast<std::size_t>(tb)]) * kRadToDeg;
+}
+
+/// Counts record f's angles between planes (those with `determined` set, all when null) whose
+/// reported 95 % interval (planeAngle) holds the truth's angle.
+/// `cross_effect` (optional) accumulates |sd without the cross-covariances / sd - 1|: what the
+/// planes' joint covariance (TrackFrame::cov_N_pair) changes.
+void countAngles(const std::vector<Eigen::Vector3d>& truth, const TrackFrame& f, const std::vector<bool>* determined, int* pairs,
+                 int* inside, double* cross_effect = nullptr) {
+  TrackFrame no_cross = f;
+  for (auto& C : no_cross.cov_N_pair) C.setZero();
+  const int m = static_cast<int>(f.N.size());
+  for (int a = 0; a < m; ++a)
+    for (int b = a + 1; b < m; ++b) {
+      if (determined && !((*determined)[static_cast<std::size_t>(a)] && (*determined)[static_cast<std::size_t>(b)])) continue;
+      const double at = trueAngleDeg(truth, f, a, b);
+      if (at < 0) continue;
+      const PlaneAngle pa = planeAngle(f, a, b);
+      EXPECT_TRUE(pa.has_sd) << "planes " << a << ", " << b;
+      ++*pairs;
+      *inside += pa.has_sd && pa.lo_deg <= at && at <= pa.hi_deg;
+      if (cross_effect && pa.sd_deg > 0) *cross_effect += std::abs(planeAngle(no_cross, a, b).sd_deg / pa.sd_deg - 1.0);
+    }
+}
 /// The refined focal length's z = (f - truth) / sd over `trials` seeds.
 Coverage focalCoverage(double ar_rho, int trials = 20) {
   Coverage c;
@@ -160,9 +198,12 @@ Coverage focalCoverage(double ar_rho, int trials = 20) {
     c.mean_z2 += z * z / trials;
     c.mean_inflation += r.refined.correlation_inflation / trials;
     c.inside += std::abs(z) <= 1.96;
+    countAngles(s.scene.normals, last, &r.refined.plane_determined, &c.angle_pairs, &c.angles_inside, &c.cross_effect);
   }
-  std::printf("focal (AR rho %.2f): %d of %d inside the 95 %% interval; mean z^2 %.2f; correlation inflation %.1f\n",
-              ar_rho, c.inside, c.trials, c.mean_z2, c.mean_inflation);
+  std::printf("focal (AR rho %.2f): %d of %d inside the 95 %% interval; mean z^2 %.2f; correlation inflation %.1f; angles "
+              "between planes %d of %d inside (their sds without the planes' cross-covariances off by %.0f %% on average)\n",
+              ar_rho, c.inside, c.trials, c.mean_z2, c.mean_inflation, c.angles_inside, c.angle_pairs,
+              c.angle_pairs ? 100 * c.cross_effect / c.angle_pairs : 0.0);
   return c;
 }
 
@@ -172,6 +213,11 @@ TEST(Refine, FocalIntervalHoldsTheTruth) {
   const Coverage c = focalCoverage(0.0);
   EXPECT_GE(c.inside, 16);
   EXPECT_LT(c.mean_z2, 2.5);  // z^2 averages 1 when the sd is right
+  // The angles between the cube's faces (planeAngle: the planes' joint covariance, cov_N_pair)
+  // at about the stated rate as well.
+  EXPECT_GE(c.angle_pairs, 20);
+  EXPECT_GE(c.angles_inside, c.angle_pairs * 85 / 100);
+  EXPECT_GT(c.cross_effect / c.angle_pairs, 0.1);  // the joint covariance is used, and it matters
 }
 
 TEST(Refine, FocalIntervalHoldsTheTruthWhenTrackErrorsDrift) {
@@ -181,6 +227,8 @@ TEST(Refine, FocalIntervalHoldsTheTruthWhenTrackErrorsDrift) {
   const Coverage c = focalCoverage(0.97);
   EXPECT_GE(c.inside, 16);
   EXPECT_LT(c.mean_z2, 2.5);
+  EXPECT_GE(c.angle_pairs, 20);
+  EXPECT_GE(c.angles_inside, c.angle_pairs * 85 / 100);
   EXPECT_GT(c.mean_inflation, 5.0);  // the correlation was seen (independent errors: about 1)
 }
 
@@ -217,6 +265,7 @@ ClusteredCheck clusteredCheck(int frames, double rho, int trials) {
 /// (OnlineAccuracy) with one - and with the covariance the filter computed.
 struct OnlineCoverage {
   int trials = 0, inside = 0, inside_raw = 0, normals = 0, normals_inside = 0;
+  int angle_pairs = 0, angles_inside = 0;  ///< the filter alone: its angles between planes (all pairs)
   double mean_z2 = 0, mean_factor = 0;
 };
 OnlineCoverage onlineFocalCoverage(double ar_rho, int trials, bool refine) {
@@ -250,6 +299,7 @@ OnlineCoverage onlineFocalCoverage(double ar_rho, int trials, bool refine) {
         c.normals_inside += best <= 1.7308 * r.refined.online_accuracy.normal_sd_deg[j];
       }
     }
+    if (!refine) countAngles(s.scene.normals, last, nullptr, &c.angle_pairs, &c.angles_inside);
     const double z = (f - s.focal) / sd;
     c.mean_z2 += z * z / trials;
     c.mean_factor += factor / trials;
@@ -257,9 +307,9 @@ OnlineCoverage onlineFocalCoverage(double ar_rho, int trials, bool refine) {
     c.inside_raw += std::abs(f - s.focal) <= 1.96 * own_sd / std::sqrt(factor);
   }
   std::printf("online focal (AR rho %.2f, %s): %d of %d inside the reported 95 %% interval (%d with the filter's own "
-              "covariance); mean z^2 %.2f; variance factor %.1f; normals %d of %d inside\n",
+              "covariance); mean z^2 %.2f; variance factor %.1f; normals %d of %d inside; angles between planes %d of %d inside\n",
               ar_rho, refine ? "against the refinement" : "filter alone", c.inside, c.trials, c.inside_raw, c.mean_z2,
-              c.mean_factor, c.normals_inside, c.normals);
+              c.mean_factor, c.normals_inside, c.normals, c.angles_inside, c.angle_pairs);
   return c;
 }
 
@@ -270,6 +320,9 @@ TEST(FilterSds, TheOnlineFocalIntervalHoldsTheTruthWhenTrackErrorsDrift) {
   // with probability < 2 % at a 95 % rate). Measured: 18 of 20 (7 with its own covariance).
   const OnlineCoverage c = onlineFocalCoverage(0.97, 20, false);
   EXPECT_GE(c.inside, 16);
+  // The filter's angles between planes, from its calibrated joint covariance (cov_N_pair).
+  EXPECT_GE(c.angle_pairs, 20);
+  EXPECT_GE(c.angles_inside, c.angle_pairs * 85 / 100);
   EXPECT_LT(c.inside_raw, c.inside - 4);  // the calibration is what holds it
   EXPECT_GT(c.mean_factor, 5.0);
 }

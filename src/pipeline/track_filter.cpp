@@ -4,6 +4,8 @@
 #include "rsfm/chi2.hpp"
 #include "rsfm/determinacy.hpp"
 #include "rsfm/residual_correlation.hpp"
+#include "rsfm/geometry.hpp"
+#include "rsfm/units.hpp"
 
 #include <fmt/format.h>
 
@@ -115,6 +117,7 @@ void calibrateSds(const ResidualSeries& series, double sigma_px, TrackFilterResu
     tf.cov_motion *= c.variance_factor;
     for (auto& C : tf.cov_N) C *= c.variance_factor;
     for (auto& C : tf.cov_beta_N) C *= c.variance_factor;
+    for (auto& C : tf.cov_N_pair) C *= c.variance_factor;
   }
 }
 
@@ -587,7 +590,11 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       tf->cov_beta_N.push_back(f.ekf().P().block<1, 3>(idx::kBeta, b).transpose());
     };
     auto recordPlanes = [&](TrackFrame* tf) {
-      for (int j = 0; j < f.model().numPlanes(); ++j) recordPlane(tf, j);
+      const int mp = f.model().numPlanes();
+      for (int j = 0; j < mp; ++j) recordPlane(tf, j);
+      for (int b2 = 1; b2 < mp; ++b2)
+        for (int a = 0; a < b2; ++a)
+          tf->cov_N_pair.push_back(f.ekf().P().block<3, 3>(PlaneModel::planeIndex(a), PlaneModel::planeIndex(b2)));
     };
     // A track that joins plane j after the reference frame, at reference position `ref`.
     auto join = [&](int id, const Eigen::Vector2d& ref, int j) {
@@ -677,6 +684,8 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
         first_frame.push_back(k);
         for (size_t q = 0; q < ls.ids.size(); ++q) join(ls.ids[q], ls.ref[q], j);
         recordPlane(&res.frames.back(), j);
+        for (int a = 0; a < j; ++a)
+          res.frames.back().cov_N_pair.push_back(f.ekf().P().block<3, 3>(PlaneModel::planeIndex(a), PlaneModel::planeIndex(j)));
       }
       // Tracks born in this frame join their plane, transferred to the reference frame.
       if (o.add_new_tracks) {
@@ -714,6 +723,7 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
         fr.cov_N.push_back(at.cov_N[j]);
         fr.cov_beta_N.push_back(at.cov_beta_N[j]);
       }
+    for (TrackFrame& fr : res.frames) fr.cov_N_pair.resize(static_cast<std::size_t>(planes_in * (planes_in - 1) / 2), Eigen::Matrix3d::Zero());
     res.plane_rms_px.resize(planes_in);
     for (int j = 0; j < planes_in; ++j) res.plane_rms_px[j] = cnt[j] ? std::sqrt(sum2[j] / cnt[j]) : 0.0;
     res.passes = pass;
@@ -833,6 +843,45 @@ Eigen::Matrix4d covBetaN(const TrackFrame& f, int j) {
     c.block<3, 1>(1, 0) = f.cov_beta_N[static_cast<std::size_t>(j)];
   }
   return c;
+}
+
+PlaneAngle planeAngle(const TrackFrame& f, int a, int b) {
+  PlaneAngle p;
+  p.a = a;
+  p.b = b;
+  const int m = static_cast<int>(f.N.size());
+  if (a < 0 || b <= a || b >= m) return p;
+  const Eigen::Vector3d& Na = f.N[static_cast<std::size_t>(a)];
+  const Eigen::Vector3d& Nb = f.N[static_cast<std::size_t>(b)];
+  Eigen::Matrix<double, 1, 6> g;
+  const double theta = normalAngle(Na, Nb, &g);
+  p.angle_deg = theta * kRadToDeg;
+  p.hi_deg = 90.0;
+  const int k = planePairIndex(a, b);
+  if (static_cast<int>(f.cov_N.size()) < m || static_cast<int>(f.cov_N_pair.size()) <= k) return p;
+  Eigen::Matrix<double, 6, 6> C;
+  C << f.cov_N[static_cast<std::size_t>(a)], f.cov_N_pair[static_cast<std::size_t>(k)],
+      f.cov_N_pair[static_cast<std::size_t>(k)].transpose(), f.cov_N[static_cast<std::size_t>(b)];
+  if (!C.allFinite()) return p;
+  p.has_sd = true;
+  p.sd_deg = std::sqrt(std::max(0.0, (g * C * g.transpose())(0, 0))) * kRadToDeg;
+  // The normals' relative error on the tangent plane: n_b' - n_a' with b's sign following a's
+  // (the lines' angle), d n = (I - n n^T) dN / |N|.
+  const Eigen::Vector3d na = Na.normalized(), nb = Nb.normalized();
+  const double sign = na.dot(nb) < 0 ? -1.0 : 1.0;
+  Eigen::Matrix<double, 3, 6> D;
+  D.leftCols<3>() = -(Eigen::Matrix3d::Identity() - na * na.transpose()) / Na.norm();
+  D.rightCols<3>() = sign * (Eigen::Matrix3d::Identity() - nb * nb.transpose()) / Nb.norm();
+  const double sd_rel = std::sqrt(std::max(0.0, (D * C * D.transpose()).trace())) * kRadToDeg;
+  constexpr double kDisc95 = 2.4477;  // sqrt(chi2_2(0.95))
+  if (p.angle_deg <= kDisc95 * sd_rel) {
+    p.lo_deg = 0.0;
+    p.hi_deg = std::min(90.0, p.angle_deg + kDisc95 * sd_rel);
+  } else {
+    p.lo_deg = std::max(0.0, p.angle_deg - 1.96 * p.sd_deg);
+    p.hi_deg = std::min(90.0, p.angle_deg + 1.96 * p.sd_deg);
+  }
+  return p;
 }
 
 MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matrix4d& cov) {

@@ -212,8 +212,15 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
     const int a = std::min(order[0].second, order[1].second), b = std::max(order[0].second, order[1].second);
     for (const auto& e : s["angles_between_planes_deg"])
       if (e["planes"][0].get<int>() == a && e["planes"][1].get<int>() == b &&
-          !(e.contains("determined") && !e["determined"].get<bool>()))
+          !(e.contains("determined") && !e["determined"].get<bool>())) {
         row.face_angle_deg = e["angle_deg"].get<double>();
+        if (e.contains("sd_deg") && e["sd_deg"].is_number()) row.face_angle_sd_deg = e["sd_deg"].get<double>();
+        // box.mp4: two faces of a box, 90 deg apart.
+        if (row.sequence.rfind("box.mp4@", 0) == 0 && e.contains("interval_deg") && e["interval_deg"].is_array()) {
+          ++row.face_angle_pairs;
+          row.face_angles_in_95 += e["interval_deg"][0].get<double>() <= 90.0 && 90.0 <= e["interval_deg"][1].get<double>();
+        }
+      }
   }
   if (!truth_dir) return;
   io::Summary truth, est;
@@ -296,6 +303,16 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
       const double at = eval::angleDeg(truth.planes[i], truth.planes[j]);
       const double ae = eval::angleDeg(est.planes[pm.estimate_of_truth[i]], est.planes[pm.estimate_of_truth[j]]);
       row.face_angle_err_deg = std::max(row.face_angle_err_deg.value_or(0.0), std::abs(ae - at));
+      // The reported 95 % interval of that angle (between lines, 0-90 deg) against the truth's.
+      const int p = std::min(pm.estimate_of_truth[i], pm.estimate_of_truth[j]), q = std::max(pm.estimate_of_truth[i], pm.estimate_of_truth[j]);
+      const double at_line = std::min(at, 180.0 - at);
+      if (s.contains("angles_between_planes_deg"))
+        for (const auto& e : s["angles_between_planes_deg"])
+          if (e["planes"][0].get<int>() == p && e["planes"][1].get<int>() == q && e.contains("interval_deg") &&
+              e["interval_deg"].is_array()) {
+            ++row.face_angle_pairs;
+            row.face_angles_in_95 += e["interval_deg"][0].get<double>() <= at_line && at_line <= e["interval_deg"][1].get<double>();
+          }
     }
   // Undeterminable quantities: explicitly marked as not determined, or given as numbers.
   if (row.focal_determinable && row.structure_determinable) {
@@ -610,6 +627,7 @@ struct Aggregate {
   int online_focal_cov = 0, online_normal_cov = 0, reported_undetermined = 0;
   int online_reported_focal_cov = 0, online_reported_normal_cov = 0;  // the online section's sds as reported
   int planes_true = 0, planes_found = 0;  // truth planes, and those matched by an estimated plane
+  int face_pairs = 0, face_cov = 0;       // determined angles between matched planes; truth inside their 95 % interval
   std::vector<double> focal_err, normal_err, face_err, ate, online_focal_err, online_normal_err;
   int undet = 0, undet_marked = 0, undet_confident = 0, undet_none = 0;
 };
@@ -641,6 +659,8 @@ Aggregate aggregate(const std::vector<Row>& rows) {
       if (r.worst_normal_err_deg) a.normal_err.push_back(*r.worst_normal_err_deg);
       if (r.online_worst_normal_err_deg) a.online_normal_err.push_back(*r.online_worst_normal_err_deg);
       if (r.face_angle_err_deg) a.face_err.push_back(*r.face_angle_err_deg);
+      a.face_pairs += r.face_angle_pairs;
+      a.face_cov += r.face_angles_in_95;
     }
     if (r.ate_pct && r.structure_determinable) a.ate.push_back(*r.ate_pct);
     if (r.undetermined != "-" && !r.undetermined.empty()) {
@@ -658,7 +678,8 @@ Aggregate aggregate(const std::vector<Row>& rows) {
 const char* kCsvHeader =
     "sequence,kind,axes,frames,exit_code,message,frames_processed,seconds,fps,truth_check_px,focal_true_px,"
     "focal_est_px,focal_sd_px,focal_err_pct,focal_in_95,focal_determinable,focal_reported_undetermined,planes_true,planes_found,planes_matched,"
-    "worst_normal_err_deg,normals_in_95,structure_determinable,face_angle_err_deg,face_angle_deg,ate_pct,"
+    "worst_normal_err_deg,normals_in_95,structure_determinable,face_angle_err_deg,face_angle_deg,face_angle_sd_deg,"
+    "face_angles_in_95,face_angle_pairs,ate_pct,"
     "rpe_trans_pct,rpe_rot_deg,undetermined,reported_undetermined,online_focal_err_pct,online_focal_in_95,"
     "online_worst_normal_err_deg,online_normals_in_95,k1_true,k1_est,track_err_median_px,track_err_p95_px,track_err_radial_px";
 
@@ -669,14 +690,15 @@ std::string scoreboardCsv(const BenchResult& res) {
   for (const Row& r : res.rows) {
     const std::string fps =
         r.seconds > 0 && r.kind != "colmap" && r.exit_code == 0 ? fmt::format("{:.1f}", r.frames / r.seconds) : std::string();
-    s += fmt::format("{},{},{},{},{},{},{},{:.2f},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+    s += fmt::format("{},{},{},{},{},{},{},{:.2f},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                      csvField(r.sequence), r.kind, csvField(r.axes), r.frames, r.exit_code, csvField(r.message),
                      r.frames_processed, r.seconds, fps, fmtOpt(r.truth_check_px, "{:.3f}"),
                      fmtOpt(r.focal_true, "{:.1f}"), fmtOpt(r.focal_est, "{:.1f}"), fmtOpt(r.focal_sd, "{:.2f}"),
                      fmtOpt(r.focal_err_pct, "{:.2f}"), fmtBool(r.focal_in_95), r.focal_determinable ? "yes" : "no",
                      r.focal_marked ? "yes" : "no", r.planes_true, r.planes_found, r.planes_matched, fmtOpt(r.worst_normal_err_deg, "{:.2f}"),
                      r.normals_in_95, r.structure_determinable ? "yes" : "no", fmtOpt(r.face_angle_err_deg, "{:.2f}"),
-                     fmtOpt(r.face_angle_deg, "{:.2f}"), fmtOpt(r.ate_pct, "{:.2f}"), fmtOpt(r.rpe_trans_pct, "{:.3f}"),
+                     fmtOpt(r.face_angle_deg, "{:.2f}"), fmtOpt(r.face_angle_sd_deg, "{:.2f}"), r.face_angles_in_95,
+                     r.face_angle_pairs, fmtOpt(r.ate_pct, "{:.2f}"), fmtOpt(r.rpe_trans_pct, "{:.3f}"),
                      fmtOpt(r.rpe_rot_deg, "{:.3f}"), r.undetermined, r.reported_undetermined,
                      fmtOpt(r.online_focal_err_pct, "{:.2f}"), fmtBool(r.online_focal_in_95),
                      fmtOpt(r.online_worst_normal_err_deg, "{:.2f}"), r.online_normals_in_95, fmtOpt(r.k1_true, "{:.4f}"),
@@ -711,7 +733,8 @@ std::string scoreboardCsv(const BenchResult& res) {
        {"focal_in_95", share(a.focal_cov, a.focal_pairs)},
        {"normals_in_95", share(a.normal_cov, a.normal_pairs)},
        {"online_focal_in_95", share(a.online_focal_cov, a.focal_pairs)},
-       {"online_normals_in_95", share(a.online_normal_cov, a.normal_pairs)}});
+       {"online_normals_in_95", share(a.online_normal_cov, a.normal_pairs)},
+       {"face_angles_in_95", share(a.face_cov, a.face_pairs)}});
   // The median and the worst rows: one statistic of the same error columns.
   auto errorRow = [&](const std::string& name, const std::string& message, const auto& stat) {
     row(name, message,
@@ -747,6 +770,7 @@ std::string scoreboardMarkdown(const BenchResult& res, const std::string& invoca
   s += fmt::format("| &nbsp; plane normals | {} (filter alone: {}; online figures against the refinement: {}) |\n",
                    pct(a.normal_cov, a.normal_pairs), pct(a.online_normal_cov, a.normal_pairs),
                    pct(a.online_reported_normal_cov, a.normal_pairs));
+  s += fmt::format("| &nbsp; angles between matched planes (determined; not in the total above) | {} |\n", pct(a.face_cov, a.face_pairs));
   s += fmt::format("| truth planes found (matched by an estimated plane) | {} |\n", pct(a.planes_found, a.planes_true));
   s += fmt::format("| determinable quantities reported not determined | {} |\n", a.reported_undetermined);
   s += fmt::format("| focal error, determinable sequences | {} |\n", medw(a.focal_err, " %"));
@@ -783,13 +807,16 @@ std::string scoreboardMarkdown(const BenchResult& res, const std::string& invoca
     if (r.sequence.rfind("box.mp4@", 0) == 0) box.push_back(&r);
   if (!box.empty()) {
     s += "\n## opencv-doc box.mp4: ten 150-frame windows, default options\n\n";
-    s += "| window | exit | planes | face angle deg | focal px | focal sd px | message |\n|---|---|---|---|---|---|---|\n";
+    s += "| window | exit | planes | face angle deg | face angle sd deg | focal px | focal sd px | message |\n"
+         "|---|---|---|---|---|---|---|---|\n";
     std::vector<double> focal, angle;
-    int two = 0;
+    int two = 0, angle_pairs = 0, angle_in = 0;
     for (const Row* r : box) {
-      s += fmt::format("| {} | {} | {} | {} | {} | {} | {} |\n", r->sequence, r->exit_code, r->planes_found,
-                       fmtOpt(r->face_angle_deg, "{:.1f}"), fmtOpt(r->focal_est, "{:.1f}"), fmtOpt(r->focal_sd, "{:.1f}"),
-                       r->message);
+      s += fmt::format("| {} | {} | {} | {} | {} | {} | {} | {} |\n", r->sequence, r->exit_code, r->planes_found,
+                       fmtOpt(r->face_angle_deg, "{:.1f}"), fmtOpt(r->face_angle_sd_deg, "{:.1f}"), fmtOpt(r->focal_est, "{:.1f}"),
+                       fmtOpt(r->focal_sd, "{:.1f}"), r->message);
+      angle_pairs += r->face_angle_pairs;
+      angle_in += r->face_angles_in_95;
       if (r->focal_est) focal.push_back(*r->focal_est);
       if (r->face_angle_deg) angle.push_back(*r->face_angle_deg);
       two += r->planes_found >= 2;
@@ -811,8 +838,9 @@ std::string scoreboardMarkdown(const BenchResult& res, const std::string& invoca
       const auto [lo, hi] = std::minmax_element(angle.begin(), angle.end());
       double worst90 = 0;
       for (double x : angle) worst90 = std::max(worst90, std::abs(x - 90));
-      s += fmt::format(" Face angle: {:.1f}-{:.1f} deg (spread {:.1f} deg, worst |angle - 90| {:.1f} deg).\n", *lo, *hi,
-                       *hi - *lo, worst90);
+      s += fmt::format(" Face angle: {:.1f}-{:.1f} deg (spread {:.1f} deg, worst |angle - 90| {:.1f} deg); 90 deg inside {}/{} "
+                       "windows' own 95 % intervals.\n",
+                       *lo, *hi, *hi - *lo, worst90, angle_in, angle_pairs);
     } else {
       s += "\n";
     }
@@ -859,6 +887,7 @@ std::string scoreboardJson(const BenchResult& res, const std::string& invocation
                     {"online_normals_in_95", ratio(a.online_normal_cov, a.normal_pairs)},
                     {"online_reported_focal_in_95", ratio(a.online_reported_focal_cov, a.focal_pairs)},
                     {"online_reported_normals_in_95", ratio(a.online_reported_normal_cov, a.normal_pairs)},
+                    {"face_angles_in_95", ratio(a.face_cov, a.face_pairs)},
                     {"online_focal_err_pct", stat(a.online_focal_err)},
                     {"online_worst_normal_err_deg", stat(a.online_normal_err)},
                     {"reported_undetermined", a.reported_undetermined},
@@ -907,6 +936,9 @@ std::string scoreboardJson(const BenchResult& res, const std::string& invocation
                          {"structure_determinable", r.structure_determinable},
                          {"face_angle_err_deg", opt(r.face_angle_err_deg)},
                          {"face_angle_deg", opt(r.face_angle_deg)},
+                         {"face_angle_sd_deg", opt(r.face_angle_sd_deg)},
+                         {"face_angles_in_95", r.face_angles_in_95},
+                         {"face_angle_pairs", r.face_angle_pairs},
                          {"ate_pct", opt(r.ate_pct)},
                          {"rpe_trans_pct", opt(r.rpe_trans_pct)},
                          {"rpe_rot_deg", opt(r.rpe_rot_deg)},

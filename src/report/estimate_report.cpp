@@ -158,6 +158,7 @@ void markDeterminacy(nlohmann::json* out, bool focal_determined, const std::vect
     for (auto& a : j["angles_between_planes_deg"]) {
       const auto pa = a["planes"][0].get<std::size_t>(), pb = a["planes"][1].get<std::size_t>();
       a["determined"] = pa < pd.size() && pb < pd.size() && pd[pa] && pd[pb];
+      if (!a["determined"].get<bool>()) a["sd_deg"] = a["interval_deg"] = nullptr;
     }
     j["structure_determined"] = std::all_of(pd.begin(), pd.end(), [](bool b) { return b; });
   }
@@ -194,8 +195,15 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
   }
   nlohmann::json angles = nlohmann::json::array();
   for (size_t a = 0; a < last.N.size(); ++a)
-    for (size_t b = a + 1; b < last.N.size(); ++b)
-      angles.push_back({{"planes", {a, b}}, {"angle_deg", normalAngle(last.N[a], last.N[b]) * 180.0 / M_PI}});
+    for (size_t b = a + 1; b < last.N.size(); ++b) {
+      // With its sd and 95 % interval (planeAngle; null without the planes' joint covariance, and
+      // for a pair not determined, markDeterminacy).
+      const PlaneAngle pa = planeAngle(last, static_cast<int>(a), static_cast<int>(b));
+      nlohmann::json e = {{"planes", {a, b}}, {"angle_deg", pa.angle_deg}};
+      e["sd_deg"] = pa.has_sd ? finiteOrNull(pa.sd_deg) : nlohmann::json(nullptr);
+      e["interval_deg"] = pa.has_sd ? nlohmann::json::array({pa.lo_deg, pa.hi_deg}) : nlohmann::json(nullptr);
+      angles.push_back(e);
+    }
   j["angles_between_planes_deg"] = angles;
   int outliers = 0, unused = 0, labelled = 0;
   for (int l : *r.labels) {

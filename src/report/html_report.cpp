@@ -120,8 +120,13 @@ std::string headline(const nlohmann::json& s) {
   if (s.contains("angles_between_planes_deg"))
     for (const auto& a : s["angles_between_planes_deg"]) {
       const bool det = !a.contains("determined") || a["determined"].get<bool>();
+      // With its sd and 95 % interval when the summary has them (planeAngle).
+      const bool has_sd = a.contains("sd_deg") && a["sd_deg"].is_number() && a.contains("interval_deg") && a["interval_deg"].is_array();
+      const std::string sd = has_sd ? fmt::format(" &plusmn; {:.2f}&deg; (95 %: {:.1f}&ndash;{:.1f}&deg;)", a["sd_deg"].get<double>(),
+                                                  a["interval_deg"][0].get<double>(), a["interval_deg"][1].get<double>())
+                                    : std::string();
       row(fmt::format("angle between planes {} and {}", a["planes"][0].get<int>(), a["planes"][1].get<int>()),
-          fmt::format("{:.2f}&deg;{}", a["angle_deg"].get<double>(), det ? "" : " <span class=\"nd\">(not determined)</span>"));
+          fmt::format("{:.2f}&deg;{}{}", a["angle_deg"].get<double>(), sd, det ? "" : " <span class=\"nd\">(not determined)</span>"));
     }
   if (s.contains("last_frame_normals") && s["last_frame_normals"].is_object()) {
     const auto& ln = s["last_frame_normals"];

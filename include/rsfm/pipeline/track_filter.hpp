@@ -131,6 +131,11 @@ struct TrackFrame {
   std::vector<Eigen::Vector3d> N;                  ///< plane models: N per plane (reference frame)
   std::vector<Eigen::Matrix3d> cov_N;
   std::vector<Eigen::Vector3d> cov_beta_N;  ///< cov(beta, N) per plane
+  /// cov(N_a, N_b) (3 x 3, rows N_a) for each pair a < b of planes in the order (0, 1), (0, 2),
+  /// (1, 2), (0, 3), ... (planePairIndex: a plane that joins adds its pairs at the end): the
+  /// angles between planes need them (planeAngle). Zero for a pair with a plane the record
+  /// repeats from where it joined (TrackFilterResult::plane_first_frame).
+  std::vector<Eigen::Matrix3d> cov_N_pair;
   int observed = 0;   ///< observations offered
   int used = 0;       ///< accepted by the gate
   int gated = 0;      ///< rejected by the gate
@@ -231,6 +236,29 @@ MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matr
 /// The 4x4 covariance of (beta, N_X, N_Y, N_Z) of plane j in a frame's record (zero blocks for a
 /// plane the record does not hold): metricPlane's `cov`.
 Eigen::Matrix4d covBetaN(const TrackFrame& f, int j);
+
+/// Index of the pair (a, b), a < b, in TrackFrame::cov_N_pair.
+inline int planePairIndex(int a, int b) { return b * (b - 1) / 2 + a; }
+
+/// The angle between two planes of a record with its first-order sd and a 95 % interval
+/// (summary.json `angles_between_planes_deg`, docs/estimate.md section 4 "Angles between
+/// planes"). The angle is between the normals' lines, in [0, 90] deg (normalAngle); its sd is
+/// the delta method's, sqrt(g C g^T) with g normalAngle's gradient and C the joint 6 x 6
+/// covariance of (N_a, N_b) (cov_N, cov_N_pair). The interval is angle +- 1.96 sd cut to
+/// [0, 90], except near parallel planes, where the linearization fails (the angle is a cone's
+/// apex there): when the 95 % disc of the normals' relative error, radius 2.448 sd_rel
+/// (sqrt(chi2_2(0.95)), sd_rel = sqrt(trace cov(n_b - n_a)) on the tangent plane), reaches the
+/// parallel, the interval is [0, angle + 2.448 sd_rel] (the angle changes by at most that
+/// error's size). No covariance for the pair (cov_N_pair empty): the sd is NaN
+/// (has_sd false).
+struct PlaneAngle {
+  int a = 0, b = 0;
+  double angle_deg = 0.0;
+  bool has_sd = false;
+  double sd_deg = 0.0;
+  double lo_deg = 0.0, hi_deg = 90.0;  ///< the 95 % interval
+};
+PlaneAngle planeAngle(const TrackFrame& f, int a, int b);
 
 /// Wald statistics of one frame's motion against its covariance `cov` over the motion state
 /// (t_X, t_Y, t_Z beta, omega; TrackFrame::cov_motion, RefineResult::cov_motion), the tests for

@@ -66,6 +66,12 @@ struct Row {
   int online_reported_normals_in_95 = 0;
   std::optional<double> face_angle_err_deg;  ///< worst |angle between two estimated planes - true angle|
   std::optional<double> face_angle_deg;   ///< real rows: the angle between the two planes with the most tracks
+  std::optional<double> face_angle_sd_deg;  ///< its reported sd (summary.json angles_between_planes_deg; determined only)
+  /// Angles between planes with a determined angle and a 95 % interval, and how many of those
+  /// intervals hold the truth: rendered rows, every pair of matched planes (the true angle between
+  /// the truth's planes); box.mp4 windows, the two planes with the most tracks (two faces of a box:
+  /// 90 deg).
+  int face_angle_pairs = 0, face_angles_in_95 = 0;
   std::optional<double> ate_pct;          ///< ATE RMSE, % of the scene size (or of the trajectory's extent)
   std::optional<double> rpe_trans_pct, rpe_rot_deg;
   std::string undetermined;               ///< "-", "marked", "no output", "confident" (docs/regimes.md)
