@@ -388,6 +388,41 @@ TEST(PlaneAngle, IntervalsFollowTheCovarianceAndStayInRange) {
   EXPECT_EQ(planePairIndex(0, 3), 3);
 }
 
+// ---- a plane's unit normal and distance from (beta, N) (metricPlane: behind the reported
+// plane_normal_sd_deg and plane_distance_sd) ----
+void checkMetricPlane(const Eigen::Vector3d& N, double beta, const std::string& what, double step = 1e-6) {
+  auto f = [](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+    const MetricPlane p = metricPlane(Eigen::Vector3d(x.tail<3>()), x[0]);
+    *y = Eigen::Vector4d(p.n.x(), p.n.y(), p.n.z(), p.d);
+    return std::isfinite(p.d);
+  };
+  Eigen::Matrix4d J;
+  metricPlane(N, beta, Eigen::Matrix4d::Zero(), &J);
+  Eigen::VectorXd x(4);
+  x << beta, N;
+  expectJacobian(f, x, J, 1e-6, what, step);
+}
+TEST(MetricPlaneJacobian, Generic) { checkMetricPlane({0.3, -0.2, 1.1}, 0.8, "generic"); }
+TEST(MetricPlaneJacobian, TheSignFlips) {
+  // d = (1 + N_Z / beta) / |N| < 0: n and d change sign, and so does the Jacobian.
+  checkMetricPlane({0.3, -0.2, -1.5}, 0.8, "d < 0");
+}
+TEST(MetricPlaneJacobian, NearlyEdgeOnAndSmallBeta) {
+  // A plane through the centre of projection's neighbourhood (d -> 0, edge-on) and a long focal
+  // length (beta = 0.05).
+  checkMetricPlane({0.2, 0.1, -0.8 + 1e-4}, 0.8, "d near 0", 1e-8);
+  checkMetricPlane({0.02, -0.01, 0.5}, 0.05, "beta 0.05");
+}
+TEST(MetricPlaneJacobian, GivesTheReportedSds) {
+  // The sds metricPlane reports are those of J cov J^T.
+  const Eigen::Vector3d N(0.3, -0.2, 1.1);
+  Eigen::Matrix4d A = Eigen::Matrix4d::Random(), cov = 1e-4 * A * A.transpose(), J;
+  const MetricPlane p = metricPlane(N, 0.8, cov, &J);
+  const Eigen::Matrix4d C = J * cov * J.transpose();
+  EXPECT_NEAR(p.sd_angle_deg, std::sqrt(C.topLeftCorner<3, 3>().trace()) * 180.0 / M_PI, 1e-12);
+  EXPECT_NEAR(p.sd_d, std::sqrt(C(3, 3)), 1e-12);
+}
+
 TEST(Models, InvalidRotationIsReported) {
   const PlaneModel m = planeModel();
   const auto x = planeState({0, 0, 0}, {2.5, 0, 0}, 1.0, {1.0, 0.0, 2.0});

@@ -884,7 +884,7 @@ PlaneAngle planeAngle(const TrackFrame& f, int a, int b) {
   return p;
 }
 
-MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matrix4d& cov) {
+MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matrix4d& cov, Eigen::Matrix4d* J) {
   MetricPlane p;
   const double r = N.norm();
   p.n = N / r;
@@ -898,10 +898,13 @@ MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matr
   const Eigen::Matrix3d cn = Jn * cov * Jn.transpose();
   p.sd_angle_deg = std::sqrt(std::max(0.0, cn.trace())) * 180.0 / M_PI;
   p.sd_d = std::sqrt(std::max(0.0, (Jd * cov * Jd.transpose())(0, 0)));
-  if (p.d < 0) {
-    p.n = -p.n;
-    p.d = -p.d;
+  const double sign = p.d < 0 ? -1.0 : 1.0;
+  if (J) {
+    J->topRows<3>() = sign * Jn;
+    J->row(3) = sign * Jd;
   }
+  p.n *= sign;
+  p.d *= sign;
   return p;
 }
 

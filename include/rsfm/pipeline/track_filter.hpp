@@ -231,8 +231,11 @@ struct MetricPlane {
   double sd_angle_deg = 0.0;  ///< sqrt of the trace of cov(n) (first order), degrees
   double sd_d = 0.0;          ///< first-order standard deviation of d
 };
-/// `cov` is the 4x4 covariance of (beta, N_X, N_Y, N_Z) (zero: no uncertainty).
-MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matrix4d& cov = Eigen::Matrix4d::Zero());
+/// `cov` is the 4x4 covariance of (beta, N_X, N_Y, N_Z) (zero: no uncertainty). `J` (optional)
+/// receives the Jacobian of (n, d) (rows n_x, n_y, n_z, d) with respect to (beta, N), the one
+/// behind the sds (the sign choice included).
+MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matrix4d& cov = Eigen::Matrix4d::Zero(),
+                        Eigen::Matrix4d* J = nullptr);
 /// The 4x4 covariance of (beta, N_X, N_Y, N_Z) of plane j in a frame's record (zero blocks for a
 /// plane the record does not hold): metricPlane's `cov`.
 Eigen::Matrix4d covBetaN(const TrackFrame& f, int j);
