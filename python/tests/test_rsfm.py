@@ -65,8 +65,11 @@ def test_estimate_recovers_the_scene(scene):
     assert r["focal_px"] == pytest.approx(FOCAL, rel=0.03)
     planes = r["summary"]["planes"]
     assert len(planes) == 2
-    angle = r["summary"]["angles_between_planes_deg"][0]["angle_deg"]
-    assert angle == pytest.approx(90.0, abs=2.0)
+    pair = r["summary"]["angles_between_planes_deg"][0]
+    assert pair["angle_deg"] == pytest.approx(90.0, abs=2.0)
+    # Its sd and 95 % interval (from the planes' joint covariance) hold the true 90 degrees.
+    assert pair["determined"] and 0 < pair["sd_deg"] < 2.0
+    assert pair["interval_deg"][0] <= 90.0 <= pair["interval_deg"][1] <= 90.0
     # Each true face normal has an estimated plane within 3 degrees.
     est = [np.array(p) for p in planes]
     assert np.allclose(r["planes"], np.array(planes))
