@@ -330,6 +330,9 @@ std::string captionOf(const std::string& name) {
   if (name == "process_noise.png")
     return "Process noise of the filter's prediction per frame: from the motion the start measured, adapted to the measured "
            "motion (planes.csv)";
+  if (name == "angles.png")
+    return "Angles between planes per frame, the filter's online estimate with its sd, and the refined angle with its 95 % "
+           "interval (angles.csv)";
   if (name == "patch_run.png") return "Patch normals per frame (patch_normals.csv)";
   return name;
 }
@@ -501,10 +504,10 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
                  a["angle_deg"].get<double>(),
                  a.contains("sd_deg") && a["sd_deg"].is_number() ? fmt::format(" +- {:.1f}", a["sd_deg"].get<double>()) : std::string(),
                  a.contains("determined") && !a["determined"].get<bool>() ? " (not determined)" : "");
-    fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum{}, planes.csv, poses.csv, labels.csv, report.html{}{}{}\n",
+    fmt::print(stderr, "; wrote {}/summary.json, trajectory.tum{}, planes.csv, angles.csv, poses.csv, labels.csv, report.html{}{}{}\n",
                e.shown_out.empty() ? e.out : e.shown_out,
                r.refined.ok ? ", trajectory_online.tum" : "",
-               plotted ? ", motion/normals/focal/process_noise.png" : "", write_tracks ? ", tracks.csv" : "",
+               plotted ? ", motion/normals/focal/process_noise/angles.png" : "", write_tracks ? ", tracks.csv" : "",
                overlay ? ", overlay.mp4" : "");
   }
   return 0;

@@ -1,14 +1,16 @@
 #!/usr/bin/python3
 """Plots of `rsfm estimate` / `rsfm run` against frame.
 
-Usage: plot_estimate.py TRAJECTORY.tum PLANES.csv MOTION.png MOTION.svg NORMALS.png NORMALS.svg FOCAL.png FOCAL.svg
-       PROCESS_NOISE.png PROCESS_NOISE.svg
+Usage: plot_estimate.py TRAJECTORY.tum PLANES.csv ANGLES.csv MOTION.png MOTION.svg NORMALS.png NORMALS.svg FOCAL.png
+       FOCAL.svg PROCESS_NOISE.png PROCESS_NOISE.svg ANGLES.png ANGLES.svg
 - motion: camera position (tx, ty, tz, reference-camera frame, scene units) and rotation angle
   from the reference frame (deg);
 - normals: each plane's unit normal as azimuth/elevation angles (deg) with its 1-sigma band;
 - focal: focal length (px) with its 1-sigma band;
 - process_noise: the sd of the motion process noise the prediction used per frame (rotation deg,
-  translation % of the starting depth; planes.csv q_omega_sd_deg, q_trans_sd_rel).
+  translation % of the starting depth; planes.csv q_omega_sd_deg, q_trans_sd_rel);
+- angles: each pair of planes' angle (deg, between the normals' lines) with its 1-sigma band
+  (angles.csv), the refined angle dashed with its 95 % interval.
 planes.csv's rows with estimate "online" are the filter's frame by frame (curves); a row "refined"
 is the final refinement's estimate (a dashed line with its 1-sigma band at the right).
 Run with /usr/bin/python3 (Debian's matplotlib) and MPLBACKEND=Agg.
@@ -39,10 +41,24 @@ def fnum(s):
     return float("nan") if s in ("NA", "") else float(s)
 
 
+def finish(fig, ax, ylabel, title, png, svg, grid_which="major"):
+    """Labels a one-panel figure against frame and writes it as PNG and SVG."""
+    ax.set_xlabel("frame")
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3, which=grid_which)
+    ax.set_title(title, fontsize=11)
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+    fig.savefig(svg)
+    plt.close(fig)
+
+
 def main():
-    if len(sys.argv) != 11:
-        sys.exit("usage: plot_estimate.py TRAJECTORY.tum PLANES.csv MOTION.png MOTION.svg NORMALS.png NORMALS.svg "
-                 "FOCAL.png FOCAL.svg PROCESS_NOISE.png PROCESS_NOISE.svg")
+    if len(sys.argv) != 14:
+        sys.exit("usage: plot_estimate.py TRAJECTORY.tum PLANES.csv ANGLES.csv MOTION.png MOTION.svg NORMALS.png "
+                 "NORMALS.svg FOCAL.png FOCAL.svg PROCESS_NOISE.png PROCESS_NOISE.svg ANGLES.png ANGLES.svg")
+    angles_csv = sys.argv[3]
+    del sys.argv[3]  # the outputs keep their positions (argv[3..10]); the angles' figure is argv[11], argv[12]
     traj = read_tum(sys.argv[1])
     if not traj:
         sys.exit("plot_estimate.py: no poses in " + sys.argv[1])
@@ -142,14 +158,7 @@ def main():
         ax.axhline(v, color="k", ls="--", lw=1.0, label="refined")
         ax.axhspan(v - sd, v + sd, color="k", alpha=0.08, lw=0)
         ax.legend(fontsize=8)
-    ax.set_xlabel("frame")
-    ax.set_ylabel("focal length (px)")
-    ax.grid(alpha=0.3)
-    ax.set_title("Focal length estimate (1-sigma band)", fontsize=11)
-    fig.tight_layout()
-    fig.savefig(sys.argv[7], dpi=110)
-    fig.savefig(sys.argv[8])
-    plt.close(fig)
+    finish(fig, ax, "focal length (px)", "Focal length estimate (1-sigma band)", sys.argv[7], sys.argv[8])
 
     # The prediction's process noise per frame (from the motion the start measured, adapted online to
     # the motion the filter measured; jumps are frames taken again on a model mismatch).
@@ -162,14 +171,47 @@ def main():
         ax.legend(fontsize=8)
     else:
         ax.text(0.5, 0.5, "no process noise recorded", transform=ax.transAxes, ha="center")
-    ax.set_xlabel("frame")
-    ax.set_ylabel("process noise sd per frame")
-    ax.grid(alpha=0.3, which="both")
-    ax.set_title("Motion process noise used by the filter's prediction", fontsize=11)
-    fig.tight_layout()
-    fig.savefig(sys.argv[9], dpi=110)
-    fig.savefig(sys.argv[10])
-    plt.close(fig)
+    finish(fig, ax, "process noise sd per frame", "Motion process noise used by the filter's prediction", sys.argv[9],
+           sys.argv[10], grid_which="both")
+
+    # Angles between planes.
+    online_a = defaultdict(lambda: defaultdict(list))  # (a, b) -> frame, angle, sd
+    refined_a = {}  # (a, b) -> (angle, lo, hi)
+    with open(angles_csv, newline="") as f:
+        for row in csv.DictReader(f):
+            key = (int(row["plane_a"]), int(row["plane_b"]))
+            if row["estimate"] == "refined":
+                refined_a[key] = (fnum(row["angle_deg"]), fnum(row["lo_deg"]), fnum(row["hi_deg"]))
+                continue
+            d = online_a[key]
+            d["frame"].append(int(row["frame"]))
+            d["angle"].append(fnum(row["angle_deg"]))
+            d["sd"].append(fnum(row["sd_deg"]))
+    fig, ax = plt.subplots(figsize=(8, 4))
+    pairs = sorted(set(online_a) | set(refined_a))
+    for i, key in enumerate(pairs):
+        c = colours[i % len(colours)]
+        d = online_a.get(key)
+        if d:
+            ax.plot(d["frame"], d["angle"], color=c, lw=1.4, label=f"planes {key[0]}, {key[1]} (filter)")
+            # The angle between lines lies in [0, 90] deg: the band is cut there.
+            ax.fill_between(d["frame"], [max(0.0, v - s) for v, s in zip(d["angle"], d["sd"])],
+                            [min(90.0, v + s) for v, s in zip(d["angle"], d["sd"])], color=c, alpha=0.2, lw=0)
+        if key in refined_a:
+            v, lo, hi = refined_a[key]
+            nd = math.isnan(lo)
+            ax.axhline(v, color=c, ls=":" if nd else "--", lw=1.0,
+                       label=f"planes {key[0]}, {key[1]} refined" + (" (not determined)" if nd else ""))
+            if not nd:
+                ax.axhspan(lo, hi, color=c, alpha=0.08, lw=0)
+    if pairs:
+        ax.legend(fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "fewer than two planes: no angle between planes", transform=ax.transAxes, ha="center")
+    if not any(online_a.values()) and focal:
+        ax.set_xlim(min(focal), max(focal))
+    finish(fig, ax, "angle between planes (deg)", "Angles between planes (filter: 1-sigma band; refined: 95 % interval)",
+           sys.argv[11], sys.argv[12])
 
 
 if __name__ == "__main__":

@@ -71,7 +71,7 @@ fi
 mv "$PREFIX/share/rsfm/scripts" "$PREFIX/share/rsfm/scripts.gone"
 env -u RSFM_SCRIPTS_DIR "$PREFIX/bin/rsfm" estimate --tracks "$WORK/tracks.csv" --out "$WORK/est" --quiet 2>"$WORK/warn.txt" ||
   fail "rsfm estimate failed without its plot scripts"
-grep -q "warning: figures not written (motion.png, motion.svg, normals.png, normals.svg, focal.png, focal.svg, process_noise.png, process_noise.svg): the plot scripts were not found" "$WORK/warn.txt" ||
+grep -q "warning: figures not written (motion.png, motion.svg, normals.png, normals.svg, focal.png, focal.svg, process_noise.png, process_noise.svg, angles.png, angles.svg): the plot scripts were not found" "$WORK/warn.txt" ||
   { cat "$WORK/warn.txt"; fail "no warning naming the missing figures"; }
 for f in summary.json trajectory.tum trajectory_online.tum planes.csv poses.csv labels.csv camera.yaml; do
   [ -s "$WORK/est/$f" ] || fail "without scripts: $f missing"
@@ -92,7 +92,7 @@ mkdir -p "$WORK/quiet-scripts"
 printf 'import sys\n' >"$WORK/quiet-scripts/plot_estimate.py"
 RSFM_SCRIPTS_DIR="$WORK/quiet-scripts" "$PREFIX/bin/rsfm" estimate --tracks "$WORK/tracks.csv" --out "$WORK/est" --quiet \
   2>"$WORK/warn.txt" || fail "rsfm estimate failed with a silent plot script"
-grep -q "figures not written (.*process_noise.svg): plot_estimate.py exited without writing them" "$WORK/warn.txt" ||
+grep -q "figures not written (.*angles.svg): plot_estimate.py exited without writing them" "$WORK/warn.txt" ||
   { cat "$WORK/warn.txt"; fail "no warning for figures a script did not write"; }
 [ -z "$(cd "$WORK/est" && ls ./*.png ./*.svg 2>/dev/null)" ] || fail "empty figure files were kept"
 echo "install_example: a plot script that writes nothing: $(head -1 "$WORK/warn.txt")"

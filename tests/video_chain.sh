@@ -43,8 +43,8 @@ if command -v ffmpeg >/dev/null; then
   echo "overlay.mp4 of 319x239 frames: $size (padded, nothing dropped)"
 fi
 "$RSFM" evaluate --estimate "$TMP/e" --truth "$TMP/r/truth" >"$TMP/table.txt"
-for f in trajectory.tum planes.csv summary.json labels.csv tracks.csv overlay.mp4 report.html motion.png normals.png focal.png process_noise.png \
-         motion.svg normals.svg focal.svg process_noise.svg evaluation.json evaluation.md; do
+for f in trajectory.tum planes.csv angles.csv summary.json labels.csv tracks.csv overlay.mp4 report.html motion.png normals.png focal.png \
+         process_noise.png angles.png motion.svg normals.svg focal.svg process_noise.svg angles.svg evaluation.json evaluation.md; do
   [ -s "$TMP/e/$f" ] || { echo "FAIL missing output $f"; exit 1; }
 done
 /usr/bin/python3 - "$TMP/e/evaluation.json" <<'PY'
@@ -57,6 +57,27 @@ worst = max(p["angle_deg"] for p in matched)
 print(f"focal error {focal:.2f} %, ATE {ate:.3f} % of scene size, {len(matched)} planes matched, worst normal {worst:.2f} deg")
 ok = focal < 3.0 and ate < 2.0 and len(matched) >= 2 and worst < 2.0
 sys.exit(0 if ok else 1)
+PY
+# angles.csv: its refined rows are summary.json's angles between planes (angle, sd, interval), and
+# every online row's interval holds its angle within [0, 90].
+/usr/bin/python3 - "$TMP/e" <<'PY'
+import csv, json, sys
+d = sys.argv[1]
+rows = list(csv.DictReader(open(d + "/angles.csv")))
+assert list(rows[0].keys()) == ["frame", "plane_a", "plane_b", "angle_deg", "sd_deg", "lo_deg", "hi_deg", "estimate"], rows[0].keys()
+s = json.load(open(d + "/summary.json"))
+refined = {(int(r["plane_a"]), int(r["plane_b"])): r for r in rows if r["estimate"] == "refined"}
+assert len(refined) == len(s["angles_between_planes_deg"]) >= 1, (len(refined), s["angles_between_planes_deg"])
+for a in s["angles_between_planes_deg"]:
+    r = refined[tuple(a["planes"])]
+    assert abs(float(r["angle_deg"]) - a["angle_deg"]) < 1e-5, (r, a)
+    if a["sd_deg"] is None:
+        assert r["sd_deg"] == "NA" and not a["determined"], (r, a)
+    else:
+        assert abs(float(r["sd_deg"]) - a["sd_deg"]) < 1e-3 and abs(float(r["lo_deg"]) - a["interval_deg"][0]) < 1e-3, (r, a)
+online = [r for r in rows if r["estimate"] == "online" and r["sd_deg"] != "NA"]
+assert online and all(0 <= float(r["lo_deg"]) <= float(r["angle_deg"]) <= float(r["hi_deg"]) <= 90 for r in online)
+print(f"angles.csv: {len(online)} online rows, refined {[(k, refined[k]['angle_deg'], refined[k]['sd_deg']) for k in refined]}")
 PY
 
 # The affine-patch filter (issue 5): rsfm run --model patches -> evaluate, then focal within 5 %,

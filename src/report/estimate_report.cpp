@@ -411,6 +411,26 @@ std::string planeRows(const TrackFrame& f, double scale_px, const char* estimate
   return out;
 }
 
+/// angles.csv rows of one frame's estimate: each pair of planes with its angle, sd and 95 %
+/// interval (planeAngle; NA without the pair's covariance, or where `determined` says a plane of
+/// the pair is not determined). `online` and `k` as planeRows'.
+std::string angleRows(const TrackFrame& f, const char* estimate, const TrackFilterResult* online = nullptr, int k = 0,
+                      const std::vector<bool>* determined = nullptr) {
+  std::string out;
+  const int m = static_cast<int>(f.N.size());
+  for (int a = 0; a < m; ++a)
+    for (int b = a + 1; b < m; ++b) {
+      if (online && !(online->planeEstimatedAt(a, k) && online->planeEstimatedAt(b, k))) continue;
+      const PlaneAngle pa = planeAngle(f, a, b);
+      const bool det = !determined || (static_cast<std::size_t>(b) < determined->size() && (*determined)[static_cast<std::size_t>(a)] &&
+                                       (*determined)[static_cast<std::size_t>(b)]);
+      const bool sd = pa.has_sd && det && std::isfinite(pa.sd_deg);
+      out += fmt::format("{},{},{},{},{},{},{},{}\n", f.frame, a, b, num(pa.angle_deg), sd ? num(pa.sd_deg, 4) : "NA",
+                         sd ? num(pa.lo_deg, 4) : "NA", sd ? num(pa.hi_deg, 4) : "NA", estimate);
+    }
+  return out;
+}
+
 /// poses.csv: each frame's pose (as trajectory.tum) with first-order sds of the camera centre
 /// (trajectory units) and of the rotation (deg) from the motion's covariance (the refinement's;
 /// beta's own uncertainty left out), by central differences of the pose map.
@@ -472,6 +492,12 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
     pc += planeRows(fin, res.scale_px, "refined");
   }
   const auto planes_tmp = files->write(dir / "planes.csv", pc);
+  // angles.csv: the angles between planes, the filter's frame by frame, then the refinement's.
+  std::string ac = "frame,plane_a,plane_b,angle_deg,sd_deg,lo_deg,hi_deg,estimate\n";
+  for (std::size_t k = 0; k < online.frames.size(); ++k)
+    ac += angleRows(online.frames[k], "online", &online, static_cast<int>(k));
+  if (refined) ac += angleRows(res.frames.back(), "refined", nullptr, 0, &r.refined->plane_determined);
+  const auto angles_tmp = files->write(dir / "angles.csv", ac);
   // labels.csv
   std::string lc = "track,label,first_frame,last_frame\n";
   const auto spans = trackSpans(*r.tracks);
@@ -483,9 +509,9 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
   files->write(dir / "labels.csv", lc);
   nlohmann::json summary = estimateSummary(r);
   if (plots) {
-    const Figures fig = makeFigures(files, dir, "plot_estimate.py", {tum_tmp.string(), planes_tmp.string()},
+    const Figures fig = makeFigures(files, dir, "plot_estimate.py", {tum_tmp.string(), planes_tmp.string(), angles_tmp.string()},
                                     {"motion.png", "motion.svg", "normals.png", "normals.svg", "focal.png", "focal.svg",
-                                     "process_noise.png", "process_noise.svg"});
+                                     "process_noise.png", "process_noise.svg", "angles.png", "angles.svg"});
     summary["figures"] = figuresJson(fig);
     if (figures) *figures = fig;
   }
