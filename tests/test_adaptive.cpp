@@ -20,6 +20,8 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
+#include "rsfm/geometry.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <functional>
@@ -662,6 +664,36 @@ TEST(Adaptive, PlanesThatComeIntoViewLaterJoinTheFilter) {
     }
   }
   EXPECT_GE(late_checked, 2);
+  // Every record holds the joint covariance of every pair of planes (TrackFrame::cov_N_pair: a
+  // plane that joins appends its pairs), and at the last frame the angles between a plane that
+  // joined later and the others are within 0.2 deg of the truth's, with an sd. Their 95 %
+  // intervals are printed, not asserted: the filter alone's are too narrow for a late plane
+  // (measured: the three pairs with plane 3 at 2.5-3 sds from 90 deg; a late plane enters the
+  // state without its cross-covariance with the pose it was triangulated from,
+  // docs/estimate.md section 4, "Angles between planes"). The refinement's are the reported ones.
+  const int m = with.online.planes;
+  for (const TrackFrame& f : with.online.frames) ASSERT_EQ(static_cast<int>(f.cov_N_pair.size()), m * (m - 1) / 2) << f.frame;
+  auto nearestTruth = [&](const Eigen::Vector3d& N) {
+    std::size_t best = 0;
+    for (std::size_t i = 1; i < rt.truth.planes.size(); ++i)
+      if (normalAngle(rt.truth.planes[i], N) < normalAngle(rt.truth.planes[best], N)) best = i;
+    return rt.truth.planes[best];
+  };
+  int late_pairs = 0, late_pairs_inside = 0;
+  for (int b = without.online.planes; b < m; ++b)
+    for (int a = 0; a < b; ++a) {
+      if (with.planes.count(a) < 30 || with.planes.count(b) < 30) continue;
+      const PlaneAngle pa = planeAngle(last, a, b);
+      ASSERT_TRUE(pa.has_sd);
+      const double truth = normalAngle(nearestTruth(last.N[static_cast<std::size_t>(a)]), nearestTruth(last.N[static_cast<std::size_t>(b)])) * 180.0 / M_PI;
+      std::printf("planes %d, %d: %.2f +- %.2f deg, interval %.2f-%.2f, truth %.2f\n", a, b, pa.angle_deg, pa.sd_deg, pa.lo_deg, pa.hi_deg, truth);
+      EXPECT_GT(pa.sd_deg, 0.0);
+      EXPECT_LT(std::abs(pa.angle_deg - truth), 0.2);
+      ++late_pairs;
+      late_pairs_inside += pa.lo_deg <= truth && truth <= pa.hi_deg;
+    }
+  std::printf("angles with a late plane: %d of %d inside their 95 %% intervals (the filter alone)\n", late_pairs_inside, late_pairs);
+  EXPECT_GE(late_pairs, 3);
   // A late search that finds a plane the filter already has (the floor's new tracks) joins it.
   int rejoined = 0;
   for (const auto& c : with.planes.candidates) rejoined += c.verdict == vision::PlaneVerdict::Rejoined;
