@@ -252,8 +252,8 @@ inline int planePairIndex(int a, int b) { return b * (b - 1) / 2 + a; }
 /// apex there): when the 95 % disc of the normals' relative error, radius 2.448 sd_rel
 /// (sqrt(chi2_2(0.95)), sd_rel = sqrt(trace cov(n_b - n_a)) on the tangent plane), reaches the
 /// parallel, the interval is [0, angle + 2.448 sd_rel] (the angle changes by at most that
-/// error's size). No covariance for the pair (cov_N_pair empty): the sd is NaN
-/// (has_sd false).
+/// error's size). Without the pair's covariance (cov_N_pair too short, or not finite): has_sd
+/// false, sd_deg 0 and the interval [0, 90].
 struct PlaneAngle {
   int a = 0, b = 0;
   double angle_deg = 0.0;
