@@ -575,6 +575,15 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       ok = out.estimable(0.0, g, Eigen::Vector4d::Zero());
     }
     out.normal_estimable.push_back(ok);
+    // Its cross-covariances with the planes before it: the pairs (a, j), a < j, in the order of
+    // TrackFrame::cov_N_pair.
+    for (int a = 0; a < j; ++a) {
+      Eigen::Matrix3d X = Eigen::Matrix3d::Zero();
+      for (int e = 0; e < 3; ++e)
+        for (int c = 0; c < 3; ++c)
+          if (iN[3 * a + e] >= 0 && iN[3 * j + c] >= 0) X(e, c) = cov(iN[3 * a + e], iN[3 * j + c]);
+      out.cov_N_pair.push_back(X);
+    }
   }
   for (int c = 0; c < 4; ++c) {
     if (iC[c] < 0) continue;

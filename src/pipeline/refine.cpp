@@ -691,21 +691,6 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   // The normals' covariance with that spread added (isotropic in the tangent plane):
   // sd_total^2 = sd_bound^2 + (spread / 1.96)^2.
   std::vector<Eigen::Matrix3d> cov_N = b.cov_N;
-  // The planes' cross-covariances (TrackFrame::cov_N_pair), for the angles between them: from the
-  // bound, whose widening by the clustered checks and the jackknife acts on rows and columns, so
-  // the pairs are widened with the planes. The profile's turn enters each plane's own block
-  // above only: an angle then takes both planes' turns as independent.
-  std::vector<Eigen::Matrix3d> cov_N_pair;
-  for (int bb = 1; bb < m; ++bb)
-    for (int a = 0; a < bb; ++a) {
-      Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
-      for (int e = 0; e < 3; ++e)
-        for (int q = 0; q < 3; ++q) {
-          const int ia = b.N_index[static_cast<std::size_t>(3 * a + e)], ib = b.N_index[static_cast<std::size_t>(3 * bb + q)];
-          if (ia >= 0 && ib >= 0) C(e, q) = b.cov(ia, ib);
-        }
-      cov_N_pair.push_back(C);
-    }
   for (int j = 0; j < m && j < static_cast<int>(r.plane_profile_spread_deg.size()); ++j) {
     const Eigen::Vector3d N = st.N[j], n = N.normalized();
     const double v = std::pow(r.plane_profile_spread_deg[j] / kRadToDeg / 1.96, 2);
@@ -796,7 +781,9 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     tf.N = st.N;
     tf.cov_N = cov_N;
     tf.cov_beta_N = b.cov_beta_N;
-    tf.cov_N_pair = cov_N_pair;
+    // The planes' cross-covariances, for the angles between them: the bound's. The profile's turn
+    // enters each plane's own block above only: an angle takes both planes' turns as independent.
+    tf.cov_N_pair = b.cov_N_pair;
     tf.observed = tf.used = frame_n[k];
     tf.rms_px = frame_n[k] ? std::sqrt(frame_ss[k] / (2.0 * frame_n[k])) : 0.0;
     out.frames.push_back(tf);

@@ -588,13 +588,12 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
       tf->N.push_back(f.ekf().x().segment<3>(b));
       tf->cov_N.push_back(f.ekf().P().block<3, 3>(b, b));
       tf->cov_beta_N.push_back(f.ekf().P().block<1, 3>(idx::kBeta, b).transpose());
+      // Its cross-covariances with the planes before it: recorded in plane order, the pairs land
+      // in TrackFrame::cov_N_pair's order (planePairIndex).
+      for (int a = 0; a < j; ++a) tf->cov_N_pair.push_back(f.ekf().P().block<3, 3>(PlaneModel::planeIndex(a), b));
     };
     auto recordPlanes = [&](TrackFrame* tf) {
-      const int mp = f.model().numPlanes();
-      for (int j = 0; j < mp; ++j) recordPlane(tf, j);
-      for (int b2 = 1; b2 < mp; ++b2)
-        for (int a = 0; a < b2; ++a)
-          tf->cov_N_pair.push_back(f.ekf().P().block<3, 3>(PlaneModel::planeIndex(a), PlaneModel::planeIndex(b2)));
+      for (int j = 0; j < f.model().numPlanes(); ++j) recordPlane(tf, j);
     };
     // A track that joins plane j after the reference frame, at reference position `ref`.
     auto join = [&](int id, const Eigen::Vector2d& ref, int j) {
@@ -684,8 +683,6 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
         first_frame.push_back(k);
         for (size_t q = 0; q < ls.ids.size(); ++q) join(ls.ids[q], ls.ref[q], j);
         recordPlane(&res.frames.back(), j);
-        for (int a = 0; a < j; ++a)
-          res.frames.back().cov_N_pair.push_back(f.ekf().P().block<3, 3>(PlaneModel::planeIndex(a), PlaneModel::planeIndex(j)));
       }
       // Tracks born in this frame join their plane, transferred to the reference frame.
       if (o.add_new_tracks) {

@@ -178,6 +178,23 @@ ViewScore scoreView(const json& v, const io::Summary& truth, bool focal_determin
 
 /// Fills the rsfm-estimate part of a row from DIR/summary.json and, with a truth directory, the
 /// evaluation against it.
+/// summary.json `s`'s entry of angles_between_planes_deg for planes (a, b), a < b (null: none).
+const json* angleEntry(const json& s, int a, int b) {
+  if (!s.contains("angles_between_planes_deg")) return nullptr;
+  for (const auto& e : s["angles_between_planes_deg"])
+    if (e["planes"][0].get<int>() == a && e["planes"][1].get<int>() == b) return &e;
+  return nullptr;
+}
+
+/// Row's face-angle coverage (Row::face_angle_pairs, face_angles_in_95): the angle entry `e`'s
+/// reported 95 % interval against the true angle `truth_deg`; an entry without an interval (not
+/// determined) is not counted.
+void countAngleInterval(Row& row, const json& e, double truth_deg) {
+  if (!(e.contains("interval_deg") && e["interval_deg"].is_array())) return;
+  ++row.face_angle_pairs;
+  row.face_angles_in_95 += e["interval_deg"][0].get<double>() <= truth_deg && truth_deg <= e["interval_deg"][1].get<double>();
+}
+
 void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir) {
   const fs::path sp = est_dir / "summary.json";
   json s;
@@ -210,17 +227,12 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
     for (int i = 0; i < row.planes_found; ++i) order.emplace_back(-s["plane_tracks"][i].get<int>(), i);
     std::sort(order.begin(), order.end());
     const int a = std::min(order[0].second, order[1].second), b = std::max(order[0].second, order[1].second);
-    for (const auto& e : s["angles_between_planes_deg"])
-      if (e["planes"][0].get<int>() == a && e["planes"][1].get<int>() == b &&
-          !(e.contains("determined") && !e["determined"].get<bool>())) {
-        row.face_angle_deg = e["angle_deg"].get<double>();
-        if (e.contains("sd_deg") && e["sd_deg"].is_number()) row.face_angle_sd_deg = e["sd_deg"].get<double>();
-        // box.mp4: two faces of a box, 90 deg apart.
-        if (row.sequence.rfind("box.mp4@", 0) == 0 && e.contains("interval_deg") && e["interval_deg"].is_array()) {
-          ++row.face_angle_pairs;
-          row.face_angles_in_95 += e["interval_deg"][0].get<double>() <= 90.0 && 90.0 <= e["interval_deg"][1].get<double>();
-        }
-      }
+    const json* e = angleEntry(s, a, b);
+    if (e && !(e->contains("determined") && !(*e)["determined"].get<bool>())) {
+      row.face_angle_deg = (*e)["angle_deg"].get<double>();
+      if (e->contains("sd_deg") && (*e)["sd_deg"].is_number()) row.face_angle_sd_deg = (*e)["sd_deg"].get<double>();
+      if (row.sequence.rfind("box.mp4@", 0) == 0) countAngleInterval(row, *e, 90.0);  // two faces of a box
+    }
   }
   if (!truth_dir) return;
   io::Summary truth, est;
@@ -305,14 +317,7 @@ void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir)
       row.face_angle_err_deg = std::max(row.face_angle_err_deg.value_or(0.0), std::abs(ae - at));
       // The reported 95 % interval of that angle (between lines, 0-90 deg) against the truth's.
       const int p = std::min(pm.estimate_of_truth[i], pm.estimate_of_truth[j]), q = std::max(pm.estimate_of_truth[i], pm.estimate_of_truth[j]);
-      const double at_line = std::min(at, 180.0 - at);
-      if (s.contains("angles_between_planes_deg"))
-        for (const auto& e : s["angles_between_planes_deg"])
-          if (e["planes"][0].get<int>() == p && e["planes"][1].get<int>() == q && e.contains("interval_deg") &&
-              e["interval_deg"].is_array()) {
-            ++row.face_angle_pairs;
-            row.face_angles_in_95 += e["interval_deg"][0].get<double>() <= at_line && at_line <= e["interval_deg"][1].get<double>();
-          }
+      if (const json* e = angleEntry(s, p, q)) countAngleInterval(row, *e, std::min(at, 180.0 - at));
     }
   // Undeterminable quantities: explicitly marked as not determined, or given as numbers.
   if (row.focal_determinable && row.structure_determinable) {

@@ -186,6 +186,9 @@ struct PlaneBatchBound {
   std::vector<bool> normal_estimable;       ///< per plane: the normal's direction (2 tangent functionals)
   std::vector<Eigen::Matrix3d> cov_N;       ///< per plane (gauge row/column zero; meaningful when estimable)
   std::vector<Eigen::Vector3d> cov_beta_N;  ///< per plane: cov(beta, N)
+  /// cov(N_a, N_b) for each pair a < b, in TrackFrame::cov_N_pair's order (planePairIndex); the
+  /// widening by the clustered checks and the jackknife included (it acts on rows and columns).
+  std::vector<Eigen::Matrix3d> cov_N_pair;
   std::array<bool, 4> camera_estimable{false, false, false, false};
   Eigen::Matrix4d cov_camera = Eigen::Matrix4d::Zero();  ///< free components only (others zero)
   std::vector<Eigen::Matrix<double, 6, 6>> cov_motion;   ///< frames 0..F (frame 0 and skipped frames zero)
