@@ -666,11 +666,12 @@ TEST(Adaptive, PlanesThatComeIntoViewLaterJoinTheFilter) {
   EXPECT_GE(late_checked, 2);
   // Every record holds the joint covariance of every pair of planes (TrackFrame::cov_N_pair: a
   // plane that joins appends its pairs), and at the last frame the angles between a plane that
-  // joined later and the others are within 0.2 deg of the truth's, with an sd. Their 95 %
-  // intervals are printed, not asserted: the filter alone's are too narrow for a late plane
-  // (measured: the three pairs with plane 3 at 2.5-3 sds from 90 deg; a late plane enters the
-  // state without its cross-covariance with the pose it was triangulated from,
-  // docs/estimate.md section 4, "Angles between planes"). The refinement's are the reported ones.
+  // joined later and the others are within 0.2 deg of the truth's, with an sd, and at least 5 of
+  // the 6 hold the truth in their 95 % intervals. (Measured: 6 of 6, sds 0.14-0.15 deg for the
+  // last plane's. Before a joining track's reference kept its dependence on the state it was
+  // transferred through, PlaneModel::transferredReferenceJacobian, 3 of 6: the pairs with the
+  // last plane 89.87-89.90 +- 0.04-0.05 deg, 2.5-3 sds from 90; docs/filter.md, "Points that
+  // join later".)
   const int m = with.online.planes;
   for (const TrackFrame& f : with.online.frames) ASSERT_EQ(static_cast<int>(f.cov_N_pair.size()), m * (m - 1) / 2) << f.frame;
   auto nearestTruth = [&](const Eigen::Vector3d& N) {
@@ -694,6 +695,7 @@ TEST(Adaptive, PlanesThatComeIntoViewLaterJoinTheFilter) {
     }
   std::printf("angles with a late plane: %d of %d inside their 95 %% intervals (the filter alone)\n", late_pairs_inside, late_pairs);
   EXPECT_GE(late_pairs, 3);
+  EXPECT_GE(late_pairs_inside, late_pairs - 1);
   // A late search that finds a plane the filter already has (the floor's new tracks) joins it.
   int rejoined = 0;
   for (const auto& c : with.planes.candidates) rejoined += c.verdict == vision::PlaneVerdict::Rejoined;

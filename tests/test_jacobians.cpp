@@ -287,6 +287,88 @@ void checkRadialCamera(const Eigen::Vector4d& cam, double beta, const Eigen::Vec
   EXPECT_LT((back - h).norm(), 1e-12 * std::max(1.0, h.norm())) << what;
 }
 
+// The reference of a point that joins after the reference frame, transferred from its current
+// observation z through the state's plane and motion (PlaneModel::transferToReference), as a
+// function of the state: du/dx = -Hu^-1 H_x (PlaneModel::transferredReferenceJacobian).
+void checkTransferredReference(const PlaneModel& model, const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg, int i,
+                               double tol, const std::string& what, double step = 1e-6) {
+  Eigen::Vector2d z;
+  ASSERT_EQ(model.measure(x, Rg, i, &z, nullptr), MeasureStatus::Ok) << what;
+  auto transfer = [&](const Eigen::VectorXd& xx, Eigen::VectorXd* y) {
+    if (!incrementalRotationValid(xx.segment<3>(3))) return false;
+    const double beta = xx[6];
+    const Eigen::Matrix3d R = incrementalRotation(xx.segment<3>(3)) * Rg;
+    const Eigen::Vector3d t(xx[0], xx[1], xx[2] / beta);
+    Eigen::Vector2d u;
+    if (PlaneModel::transferToReference(xx.segment<3>(model.structureIndex(i)), beta, R, t, z, &u) != MeasureStatus::Ok)
+      return false;
+    *y = u;
+    return true;
+  };
+  Eigen::VectorXd u0;
+  ASSERT_TRUE(transfer(x, &u0)) << what;
+  EXPECT_LT((u0 - model.reference(i)).norm(), 1e-9 * std::max(1.0, model.reference(i).norm())) << what << ": the transfer inverts h";
+  Eigen::MatrixXd G;
+  Eigen::Matrix2d C;
+  ASSERT_EQ(model.transferredReferenceJacobian(x, Rg, i, 0.01, &G, &C), MeasureStatus::Ok) << what;
+  expectJacobian(transfer, x, G, tol, what, step);
+  // z's noise: C = sigma^2 du/dz du/dz^T, du/dz from the same transfer.
+  auto transferZ = [&](const Eigen::VectorXd& zz, Eigen::VectorXd* y) {
+    const Eigen::Matrix3d R = incrementalRotation(x.segment<3>(3)) * Rg;
+    const Eigen::Vector3d t(x[0], x[1], x[2] / x[6]);
+    Eigen::Vector2d u;
+    if (PlaneModel::transferToReference(x.segment<3>(model.structureIndex(i)), x[6], R, t, zz, &u) != MeasureStatus::Ok)
+      return false;
+    *y = u;
+    return true;
+  };
+  const test::JacobianCheck dz = test::centralDifference(transferZ, z, Eigen::Matrix2d::Zero(), step);
+  const Eigen::Matrix2d C_num = 1e-4 * dz.numeric * dz.numeric.transpose();
+  EXPECT_LT((C - C_num).norm(), tol * std::max(1e-4, C_num.norm())) << what << ": the observation's noise at the reference";
+}
+
+TEST(TransferredReferenceJacobian, GenericAndTwoPlanes) {
+  const PlaneModel m = planeModel();
+  const auto x = planeState({0.05, -0.03, 0.02}, {0.02, -0.04, 0.01}, 0.9, {1.15, 0.1, 2.0});
+  for (int i = 0; i < m.numPoints(); ++i) checkTransferredReference(m, x, someRotation(), i, 1e-6, "plane point " + std::to_string(i));
+  // Large motion (omega 0.8 rad, the reset reading's omega is 0 but a state may carry one).
+  const auto xl = planeState({0.1, 0.2, -0.1}, {0.3, -0.4, 0.2}, 1.2, {1.15, 0.1, 2.0});
+  int checked = 0;
+  for (int i = 0; i < m.numPoints(); ++i) {
+    Eigen::Vector2d h;
+    if (m.measure(xl, someRotation(), i, &h, nullptr) != MeasureStatus::Ok) continue;
+    checkTransferredReference(m, xl, someRotation(), i, 1e-6, "large motion point " + std::to_string(i));
+    ++checked;
+  }
+  EXPECT_GE(checked, 3);
+  // Two planes: a point's reference depends on its own plane's N, not the other's.
+  PlaneModel m2({{0.1, 0.2}, {-0.3, 0.1}}, {0, 1}, 2);
+  Eigen::VectorXd x2 = motion({0.05, -0.03, 0.02}, {0.02, -0.04, 0.01}, 0.9, 13);
+  x2.segment<3>(7) << 1.1, 0.1, 2.0;
+  x2.segment<3>(10) << -0.5, 1.2, 1.5;
+  for (int i = 0; i < 2; ++i) checkTransferredReference(m2, x2, someRotation(), i, 1e-6, "two planes " + std::to_string(i));
+  Eigen::MatrixXd G;
+  ASSERT_EQ(m2.transferredReferenceJacobian(x2, someRotation(), 1, 0.01, &G, nullptr), MeasureStatus::Ok);
+  EXPECT_EQ((G.block<2, 3>(0, 7).norm()), 0.0);
+  EXPECT_GT((G.block<2, 3>(0, 10).norm()), 0.0);
+}
+
+TEST(TransferredReferenceJacobian, NearAndOnTheHorizon) {
+  // The ray from the current camera grazes the plane (~0.1 deg, as PlaneModelJacobian.NearHorizon):
+  // the derivatives are large but must still match; on the horizon the transfer does not
+  // determine the reference, and that is reported, not divided by zero.
+  PlaneModel m({{0.6, 0.45}}, {0}, 1);
+  const double beta = 1.0, NX = -2.0, NY = 0.0;
+  const double NZ = 5e-3 - beta * (NX * 0.6 + NY * 0.45);
+  const auto x = planeState({0.0, 0.0, 0.0}, {0.001, 0.0, 0.0}, beta, {NX, NY, NZ});
+  checkTransferredReference(m, x, Eigen::Matrix3d::Identity(), 0, 1e-4, "near horizon", 1e-9);
+  auto xs = x;
+  xs[9] = -beta * (NX * 0.6 + NY * 0.45);
+  Eigen::MatrixXd G;
+  EXPECT_EQ(m.transferredReferenceJacobian(xs, Eigen::Matrix3d::Identity(), 0, 0.01, &G, nullptr), MeasureStatus::HorizonSingular);
+  EXPECT_EQ(m.transferredReferenceJacobian(x, Eigen::Matrix3d::Identity(), 3, 0.01, &G, nullptr), MeasureStatus::UnknownFeature);
+}
+
 TEST(RadialCameraJacobian, Barrel) { checkRadialCamera({0.01, -0.02, -0.25, 0.05}, 1.3, {0.4, -0.3}, "barrel"); }
 TEST(RadialCameraJacobian, Pincushion) { checkRadialCamera({0.0, 0.0, 0.1, 0.05}, 0.8, {-0.6, 0.5}, "pincushion"); }
 TEST(RadialCameraJacobian, AtTheCentreAndWithoutDistortion) {

@@ -3,6 +3,7 @@
 #include "rsfm/models/linearize.hpp"
 
 #include <Eigen/Geometry>
+#include <Eigen/SVD>
 
 #include <cmath>
 #include <stdexcept>
@@ -95,6 +96,30 @@ MeasureStatus PlaneModel::measure(const Eigen::VectorXd& x, const Eigen::Matrix3
     H->block<2, 3>(0, planeIndex(labels_[i])) = Hn;
   }
   return s;
+}
+
+MeasureStatus PlaneModel::transferredReferenceJacobian(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg, int i,
+                                                       double sigma, Eigen::MatrixXd* G, Eigen::Matrix2d* cov) const {
+  if (i < 0 || i >= numPoints()) return MeasureStatus::UnknownFeature;
+  const MotionContext m = MotionContext::fromState(x, Rg);
+  if (m.status != MeasureStatus::Ok) return m.status;
+  Eigen::Vector2d h;
+  Eigen::Matrix<double, 2, 7> Hm;
+  Eigen::Matrix<double, 2, 3> Hn;
+  Eigen::Matrix2d Hu;
+  const MeasureStatus s = measure(m, x, i, &h, &Hm, &Hn, &Hu);
+  if (s != MeasureStatus::Ok) return s;
+  // Hu's smaller singular value against its larger: below kMinGrazingSine the transfer is as
+  // ill-conditioned as transferToReference's grazing limit.
+  const Eigen::JacobiSVD<Eigen::Matrix2d> svd(Hu);
+  const Eigen::Vector2d sv = svd.singularValues();
+  if (!(sv[1] > kMinGrazingSine * sv[0])) return MeasureStatus::HorizonSingular;
+  const Eigen::Matrix2d Hi = Hu.inverse();
+  G->setZero(2, x.size());
+  G->leftCols<7>() = -Hi * Hm;
+  G->block<2, 3>(0, planeIndex(labels_[i])) = -Hi * Hn;
+  if (cov) *cov = sigma * sigma * Hi * Hi.transpose();
+  return G->allFinite() ? MeasureStatus::Ok : MeasureStatus::NonFinite;
 }
 
 void PlaneModel::linearize(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg,

@@ -208,6 +208,17 @@ TrackFrame frameOf(const RecursiveFilter<Model>& f, const FrameStats& fs, int fr
 /// plane seen again: its tracks join it (TrackFilterOptions::late_planes).
 constexpr double kSamePlaneDeg = 3.0, kSamePlaneResidual = 0.02;
 
+/// The sd (rad) of the direction of N under covariance C: the larger principal sd of C projected
+/// on the plane orthogonal to N, over |N| (the tangent of the unit normal, (I - n n^T) / |N|).
+double directionSd(const Eigen::Vector3d& N, const Eigen::Matrix3d& C) {
+  const double r = N.norm();
+  if (!(r > 0.0) || !C.allFinite()) return 0.0;
+  const Eigen::Vector3d n = N / r;
+  const Eigen::Matrix3d T = (Eigen::Matrix3d::Identity() - n * n.transpose()) / r;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(T * C * T.transpose(), Eigen::EigenvaluesOnly);
+  return std::sqrt(std::max(es.eigenvalues()[2], 0.0));
+}
+
 /// A plane that joins mid-run (TrackFilterOptions::late_planes), triangulated at frame `now`.
 struct LateStart {
   bool ok = false;    ///< N, cov_N and X are set
@@ -595,9 +606,21 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
     auto recordPlanes = [&](TrackFrame* tf) {
       for (int j = 0; j < f.model().numPlanes(); ++j) recordPlane(tf, j);
     };
-    // A track that joins plane j after the reference frame, at reference position `ref`.
+    // A track that joins plane j after the reference frame, at reference position `ref`, which
+    // was transferred through the state's plane and motion so that the model predicts the
+    // track's current observation z: h(x, u) = z. With the references conditional on the state
+    // (ReferenceModel::Conditional) the reference keeps that dependence, du/dx = -Hu^-1 H_x (the
+    // implicit function theorem on the model's own Jacobians, Hu = dh/du), and z's noise reaches
+    // it as sigma^2 Hu^-1 Hu^-T; taken as a measurement of its own (sigma^2 I, independent of the
+    // state), the state's error at the join would count as information in every later frame
+    // (docs/filter.md, "Points that join later").
+    Eigen::MatrixXd G_join;
     auto join = [&](int id, const Eigen::Vector2d& ref, int j) {
       pidx[id] = f.mutableModel().addPoint(ref, j);
+      Eigen::Matrix2d C;
+      if (fo.reference == ReferenceModel::Conditional &&
+          f.model().transferredReferenceJacobian(f.ekf().x(), f.rotation(), pidx[id], fo.sigma_uv, &G_join, &C) == MeasureStatus::Ok)
+        f.setConditionalReference(pidx[id], G_join, C);
       ++res.plane_tracks[j];
       ++res.plane_new_tracks[j];
     };
@@ -657,7 +680,13 @@ TrackFilterResult runTrackFilter(const Tracks& tracks, const std::vector<int>& l
             const Eigen::Vector3d Nj = f.ekf().x().segment<3>(PlaneModel::planeIndex(j));
             const double cosang = std::abs(metricPlane(Nj, tf.beta).n.dot(n_new));
             const double residual = medianPlaneResidual(Nj, ls.X);
-            if (cosang > std::cos(kSamePlaneDeg * M_PI / 180.0) && residual <= 2.0 * own + kSamePlaneResidual &&
+            // The normals agree within kSamePlaneDeg, or within the 95 % disc of their directions'
+            // joint sd (the late fit's start covariance, 4 cov_N, and the state's), whichever is
+            // wider: a late plane fitted to a few points can be further off than the fixed angle.
+            const Eigen::Matrix3d Pj = f.ekf().P().block<3, 3>(PlaneModel::planeIndex(j), PlaneModel::planeIndex(j));
+            const double sd_dir = directionSd(ls.N, 4.0 * ls.cov_N) + directionSd(Nj, Pj);
+            const double limit = std::max(kSamePlaneDeg * M_PI / 180.0, 2.448 * sd_dir);
+            if (cosang > std::cos(limit) && residual <= 2.0 * own + kSamePlaneResidual &&
                 (same < 0 || residual < same_residual))
               same = j, same_residual = residual;
           }
@@ -906,3 +935,4 @@ MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matr
 }
 
 }  // namespace rsfm
+

@@ -312,6 +312,27 @@ class RecursiveFilter {
     return fs;
   }
 
+  /// ReferenceModel::Conditional: point `id`'s reference is a function of the current state, not
+  /// a measurement of its own (a point that joins after the reference frame, its reference
+  /// transferred through the state's plane and motion): u_id | x ~ N(u_id + G (x - x^), C), G
+  /// 2 x n (n the state's size now), C its spread given the state. The point then takes part in
+  /// the conditionals from the next step as one the last update saw (conditionalPredict carries G
+  /// through the process noise; a frame that does not observe it marginalizes it, C += G P G^T).
+  /// Other reference models: nothing is done. docs/filter.md, "Points that join later".
+  void setConditionalReference(int id, const Eigen::Ref<const Eigen::MatrixXd>& G, const Eigen::Matrix2d& C) {
+    if (opt_.reference != ReferenceModel::Conditional) return;
+    if (id < 0 || id >= model_.numPoints() || G.rows() != 2 || G.cols() != ekf_.size())
+      throw std::invalid_argument("RecursiveFilter::setConditionalReference: point or G's size does not match");
+    ensureReferenceCovariances();
+    ensureConditional();
+    // G is taken at the current state, which is where the next step centres the conditionals
+    // (step: cond_center_ = x after the prediction; the reset reading's omega fold and a plane
+    // added since the last update change x's parametrization, not the estimate).
+    cond_G_.template middleRows<2>(2 * id) = G;
+    ref_cov_[static_cast<std::size_t>(id)] = C;
+    if (std::find(cond_active_.begin(), cond_active_.end(), id) == cond_active_.end()) cond_active_.push_back(id);
+  }
+
   /// Starts again from state (x, P) with global rotation Rg (the steps count from 0 again), keeping
   /// the model and the work space: a second pass over the same frames, or a benchmark's repeated
   /// frame, allocates nothing.

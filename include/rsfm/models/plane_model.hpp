@@ -82,6 +82,15 @@ class PlaneModel {
   static MeasureStatus transferToReference(const Eigen::Vector3d& N, double beta, const Eigen::Matrix3d& R,
                                            const Eigen::Vector3d& t, const Eigen::Vector2d& uv,
                                            Eigen::Vector2d* uv_ref);
+  /// Point i's reference position as a function of the state, where it was transferred from its
+  /// current observation z through the state's plane and motion (transferToReference, so that
+  /// h(x, u_i) = z): by the implicit function theorem du_i/dx = -Hu^-1 H_x (2 x n, H_x the
+  /// measurement's Jacobian, Hu = dh/du_i, both measure()'s), and z's noise sigma^2 I reaches u_i
+  /// as sigma^2 Hu^-1 Hu^-T (`cov`, may be null). HorizonSingular when Hu is singular (the ray
+  /// grazes the plane: the transfer does not determine the reference). docs/filter.md, "Points
+  /// that join later".
+  MeasureStatus transferredReferenceJacobian(const Eigen::VectorXd& x, const Eigen::Matrix3d& Rg, int i, double sigma,
+                                             Eigen::MatrixXd* G, Eigen::Matrix2d* cov) const;
   /// Replaces point i's reference position (reference refinement, see recursive_filter.hpp).
   void setReference(int i, const Eigen::Vector2d& uv) { ref_[i] = uv; }
 
