@@ -294,37 +294,32 @@ void checkTransferredReference(const PlaneModel& model, const Eigen::VectorXd& x
                                double tol, const std::string& what, double step = 1e-6) {
   Eigen::Vector2d z;
   ASSERT_EQ(model.measure(x, Rg, i, &z, nullptr), MeasureStatus::Ok) << what;
-  auto transfer = [&](const Eigen::VectorXd& xx, Eigen::VectorXd* y) {
+  // u = transfer(state xx, observation zz), the state's motion read as the filter reads it.
+  auto transferAt = [&](const Eigen::VectorXd& xx, const Eigen::Vector2d& zz, Eigen::VectorXd* y) {
     if (!incrementalRotationValid(xx.segment<3>(3))) return false;
     const double beta = xx[6];
     const Eigen::Matrix3d R = incrementalRotation(xx.segment<3>(3)) * Rg;
     const Eigen::Vector3d t(xx[0], xx[1], xx[2] / beta);
     Eigen::Vector2d u;
-    if (PlaneModel::transferToReference(xx.segment<3>(model.structureIndex(i)), beta, R, t, z, &u) != MeasureStatus::Ok)
+    if (PlaneModel::transferToReference(xx.segment<3>(model.structureIndex(i)), beta, R, t, zz, &u) != MeasureStatus::Ok)
       return false;
     *y = u;
     return true;
   };
+  auto transfer = [&](const Eigen::VectorXd& xx, Eigen::VectorXd* y) { return transferAt(xx, z, y); };
   Eigen::VectorXd u0;
   ASSERT_TRUE(transfer(x, &u0)) << what;
   EXPECT_LT((u0 - model.reference(i)).norm(), 1e-9 * std::max(1.0, model.reference(i).norm())) << what << ": the transfer inverts h";
+  const double sigma = 0.01;
   Eigen::MatrixXd G;
   Eigen::Matrix2d C;
-  ASSERT_EQ(model.transferredReferenceJacobian(x, Rg, i, 0.01, &G, &C), MeasureStatus::Ok) << what;
+  ASSERT_EQ(model.transferredReferenceJacobian(x, Rg, i, sigma, &G, &C), MeasureStatus::Ok) << what;
   expectJacobian(transfer, x, G, tol, what, step);
   // z's noise: C = sigma^2 du/dz du/dz^T, du/dz from the same transfer.
-  auto transferZ = [&](const Eigen::VectorXd& zz, Eigen::VectorXd* y) {
-    const Eigen::Matrix3d R = incrementalRotation(x.segment<3>(3)) * Rg;
-    const Eigen::Vector3d t(x[0], x[1], x[2] / x[6]);
-    Eigen::Vector2d u;
-    if (PlaneModel::transferToReference(x.segment<3>(model.structureIndex(i)), x[6], R, t, zz, &u) != MeasureStatus::Ok)
-      return false;
-    *y = u;
-    return true;
-  };
+  auto transferZ = [&](const Eigen::VectorXd& zz, Eigen::VectorXd* y) { return transferAt(x, zz, y); };
   const test::JacobianCheck dz = test::centralDifference(transferZ, z, Eigen::Matrix2d::Zero(), step);
-  const Eigen::Matrix2d C_num = 1e-4 * dz.numeric * dz.numeric.transpose();
-  EXPECT_LT((C - C_num).norm(), tol * std::max(1e-4, C_num.norm())) << what << ": the observation's noise at the reference";
+  const Eigen::Matrix2d C_num = sigma * sigma * dz.numeric * dz.numeric.transpose();
+  EXPECT_LT((C - C_num).norm(), tol * std::max(sigma * sigma, C_num.norm())) << what << ": the observation's noise at the reference";
 }
 
 TEST(TransferredReferenceJacobian, GenericAndTwoPlanes) {

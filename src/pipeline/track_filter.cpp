@@ -935,4 +935,3 @@ MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matr
 }
 
 }  // namespace rsfm
-

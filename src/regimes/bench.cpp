@@ -176,8 +176,6 @@ ViewScore scoreView(const json& v, const io::Summary& truth, bool focal_determin
   return out;
 }
 
-/// Fills the rsfm-estimate part of a row from DIR/summary.json and, with a truth directory, the
-/// evaluation against it.
 /// summary.json `s`'s entry of angles_between_planes_deg for planes (a, b), a < b (null: none).
 const json* angleEntry(const json& s, int a, int b) {
   if (!s.contains("angles_between_planes_deg")) return nullptr;
@@ -195,6 +193,8 @@ void countAngleInterval(Row& row, const json& e, double truth_deg) {
   row.face_angles_in_95 += e["interval_deg"][0].get<double>() <= truth_deg && truth_deg <= e["interval_deg"][1].get<double>();
 }
 
+/// Fills the rsfm-estimate part of a row from DIR/summary.json and, with a truth directory, the
+/// evaluation against it.
 void scoreEstimate(Row& row, const fs::path& est_dir, const fs::path* truth_dir) {
   const fs::path sp = est_dir / "summary.json";
   json s;
