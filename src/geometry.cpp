@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace rsfm {
 
@@ -22,6 +23,19 @@ bool fitPlane(const std::vector<Eigen::Vector3d>& pts, Eigen::Vector3d* n, doubl
   *n = nn;
   *d = nn.dot(c);
   return true;
+}
+
+Eigen::Matrix3d unitDirectionJacobian(const Eigen::Vector3d& N) {
+  const double r = N.norm();
+  if (!(r > 0.0) || !std::isfinite(r)) return Eigen::Matrix3d::Zero();
+  const Eigen::Vector3d n = N / r;
+  return (Eigen::Matrix3d::Identity() - n * n.transpose()) / r;
+}
+
+double directionRmsAngle(const Eigen::Vector3d& N, const Eigen::Matrix3d& C) {
+  if (!C.allFinite() || !N.allFinite() || !(N.norm() > 0.0)) return std::numeric_limits<double>::infinity();
+  const Eigen::Matrix3d J = unitDirectionJacobian(N);
+  return std::sqrt(std::max(0.0, (J * C * J.transpose()).trace()));
 }
 
 bool planeFromNormalOffset(const Eigen::Vector3d& n, double d, Eigen::Vector3d* N) {

@@ -409,6 +409,39 @@ TEST(NormalAngleJacobian, NearTheFold) {
   checkNormalAngle({1, 0, 0}, {std::sin(e), std::cos(e), 0.0}, "89.9 deg", 1e-8);
   checkNormalAngle({1, 0, 0}, {-std::sin(e), std::cos(e), 0.0}, "90.1 deg between the vectors", 1e-8);
 }
+// ---- the unit direction of a plane's N (behind every reported normal sd) ----
+void checkUnitDirection(const Eigen::Vector3d& N, const std::string& what) {
+  // J's entries are ~1/|N|, and the checker's error is absolute below 1: the direction is scaled
+  // by the constant |N| (so J |N| is checked, entries ~1) and the step follows |N| when it is
+  // short, so that a far plane (short N) and a near one are held to the same relative bar.
+  const double r = N.norm();
+  auto f = [r](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+    *y = r * Eigen::Vector3d(x.head<3>()).normalized();
+    return true;
+  };
+  const Eigen::Matrix3d J = unitDirectionJacobian(N);
+  expectJacobian(f, Eigen::VectorXd(N), r * J, 1e-7, what, 1e-6 * std::min(1.0, r));
+  EXPECT_LT((J * N).norm(), 1e-12) << what;  // the length does not move the direction
+  EXPECT_LT((J - J.transpose()).norm(), 1e-15 * J.norm()) << what;
+}
+TEST(UnitDirectionJacobian, GenericShortAndLong) {
+  checkUnitDirection({0.3, -0.2, 1.1}, "generic");
+  checkUnitDirection({2e-4, 1e-4, -3e-4}, "a far plane (|N| 4e-4)");
+  checkUnitDirection({250.0, -40.0, 900.0}, "a near plane (|N| 935)");
+}
+TEST(UnitDirectionJacobian, RmsAngleAndDegenerateInput) {
+  // Isotropic C = s^2 I on N = r e_z: the direction's two tangent variances are (s / r)^2 each.
+  const double s = 0.01, r = 2.0;
+  EXPECT_NEAR(directionRmsAngle({0, 0, r}, s * s * Eigen::Matrix3d::Identity()), std::sqrt(2.0) * s / r, 1e-15);
+  // Variance along N alone changes the length, not the direction.
+  EXPECT_NEAR(directionRmsAngle({0, 0, r}, Eigen::Vector3d(0, 0, 1).asDiagonal()), 0.0, 1e-15);
+  EXPECT_TRUE(unitDirectionJacobian(Eigen::Vector3d::Zero()).isZero(0.0));
+  EXPECT_TRUE(unitDirectionJacobian({NAN, 0, 1}).isZero(0.0));
+  EXPECT_TRUE(std::isinf(directionRmsAngle(Eigen::Vector3d::Zero(), Eigen::Matrix3d::Identity())));
+  Eigen::Matrix3d C = Eigen::Matrix3d::Identity();
+  C(0, 1) = NAN;
+  EXPECT_TRUE(std::isinf(directionRmsAngle({0, 0, 1}, C)));  // not determined, never 0
+}
 TEST(NormalAngleJacobian, DegenerateInputGivesZero) {
   Eigen::Matrix<double, 1, 6> J;
   EXPECT_EQ(normalAngle({0, 0, 1}, {0, 0, 3}, &J), 0.0);  // parallel: a cone point

@@ -25,6 +25,19 @@ double normalAngle(const Eigen::Vector3d& a, const Eigen::Vector3d& b);
 /// the vectors, |J| the same from both sides). Zero and non-finite vectors give 0 and J zero.
 double normalAngle(const Eigen::Vector3d& a, const Eigen::Vector3d& b, Eigen::Matrix<double, 1, 6>* J);
 
+/// Jacobian of the unit direction n = N / |N| with respect to N: (I - n n^T) / |N| (3 x 3,
+/// symmetric; n spans its null space, so only the tangent part of dN moves the direction). The
+/// linearization behind every normal's sd: cov(n) = J cov(N) J^T. Zero for a zero or
+/// non-finite N.
+Eigen::Matrix3d unitDirectionJacobian(const Eigen::Vector3d& N);
+
+/// The RMS angle (radians) of the unit direction of N under the covariance C of N:
+/// sqrt(trace(J C J^T)), J = unitDirectionJacobian(N) (to first order the root mean square of
+/// the angle between n and its perturbed self; the sd every reported normal carries, the sum of
+/// the two tangent variances, so up to sqrt(2) times the larger principal sd). Infinite for
+/// a zero or non-finite N or a non-finite C: nothing then bounds the direction.
+double directionRmsAngle(const Eigen::Vector3d& N, const Eigen::Matrix3d& C);
+
 /// Elementary rotation about the y axis by theta (radians): [[c,0,s],[0,1,0],[-s,0,c]].
 Eigen::Matrix3d rotationY(double theta);
 

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "rsfm/geometry.hpp"
 #include "rsfm/batch/plane_batch.hpp"
 
 namespace rsfm {
@@ -566,8 +567,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     out.cov_N.push_back(C);
     out.cov_beta_N.push_back(cb);
     // The direction's tangent functionals: rows of (I - n n^T) / |N|.
-    const Eigen::Vector3d Nj = at.N[j], nj = Nj.normalized();
-    const Eigen::Matrix3d J = (Eigen::Matrix3d::Identity() - nj * nj.transpose()) / Nj.norm();
+    const Eigen::Matrix3d J = unitDirectionJacobian(at.N[j]);
     bool ok = true;
     for (int row = 0; row < 3 && ok; ++row) {
       std::vector<Eigen::Vector3d> g(m, Eigen::Vector3d::Zero());

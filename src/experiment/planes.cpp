@@ -358,11 +358,7 @@ TrialOut runTrial(const PlanesOptions& o, const BoxScene& scene, double noise_px
         mt.beta_err = std::abs(b - truth.beta) / truth.beta;
         if (r.covariance_ok) {
           double cn = 0;
-          for (int j = 0; j < m; ++j) {
-            const Eigen::Vector3d Nj = r.state.N[j], n = Nj.normalized();
-            const Eigen::Matrix3d J = (Eigen::Matrix3d::Identity() - n * n.transpose()) / Nj.norm();
-            cn += std::sqrt(std::max(0.0, (J * r.cov_N[j] * J.transpose()).trace())) / m;
-          }
+          for (int j = 0; j < m; ++j) cn += directionRmsAngle(r.state.N[j], r.cov_N[j]) / m;
           mt.crb_normal = cn;
           mt.crb_beta = std::sqrt(std::max(0.0, r.var_beta)) / truth.beta;
         }

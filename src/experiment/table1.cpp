@@ -203,10 +203,8 @@ void runBatch(const Table1Options& o, const std::vector<std::vector<Eigen::Vecto
   if (r.covariance_ok) {
     // Cramer-Rao bounds: beta's standard deviation and the RMS angle of the unit normal,
     // cov(n) = J cov(N) J^T with J = (I - n n^T) / |N|.
-    const Eigen::Vector3d n = N.normalized();
-    const Eigen::Matrix3d J = (Eigen::Matrix3d::Identity() - n * n.transpose()) / N.norm();
     tr->crb_beta_sd = std::sqrt(std::max(0.0, r.var_beta));
-    tr->crb_normal_rad = std::sqrt(std::max(0.0, (J * r.cov_N[0] * J.transpose()).trace()));
+    tr->crb_normal_rad = directionRmsAngle(N, r.cov_N[0]);
     tr->crb_ok = true;
   }
 }

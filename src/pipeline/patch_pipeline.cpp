@@ -18,16 +18,13 @@ namespace {
 /// First-order sd (degrees) of the unit normal of structure s with 4x4 covariance of (beta, p1, p2, p4).
 double normalSdDeg(const Eigen::Vector3d& s, double beta, const Eigen::Matrix4d& cov) {
   const Eigen::Vector3d m(s[0], s[1], 1.0 - beta * s[2]);
-  const double nm = m.norm();
   // dm/d(beta, p1, p2, p4)
   Eigen::Matrix<double, 3, 4> dm = Eigen::Matrix<double, 3, 4>::Zero();
   dm(0, 1) = 1.0;
   dm(1, 2) = 1.0;
   dm(2, 0) = -s[2];
   dm(2, 3) = -beta;
-  const Eigen::Matrix3d dn = (Eigen::Matrix3d::Identity() - m * m.transpose() / (nm * nm)) / nm;
-  const Eigen::Matrix3d c = dn * dm * cov * dm.transpose() * dn.transpose();
-  return std::sqrt(std::max(0.0, c.trace())) * kRadToDeg;
+  return directionRmsAngle(m, dm * cov * dm.transpose()) * kRadToDeg;
 }
 
 /// Kronecker product of 2x2 matrices (row-major vectorization: vec(X Y Z) = (X (x) Z^T) vec(Y)).

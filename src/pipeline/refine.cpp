@@ -1,4 +1,5 @@
 #include "rsfm/pipeline/refine.hpp"
+#include "rsfm/geometry.hpp"
 #include "rsfm/clock.hpp"
 #include "rsfm/units.hpp"
 
@@ -697,9 +698,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     cov_N[j] += 0.5 * v * N.squaredNorm() * (Eigen::Matrix3d::Identity() - n * n.transpose());
   }
   for (int j = 0; j < m; ++j) {
-    const Eigen::Vector3d N = st.N[j], n = N.normalized();
-    const Eigen::Matrix3d J = (Eigen::Matrix3d::Identity() - n * n.transpose()) / N.norm();
-    const double sd = std::sqrt(std::max(0.0, (J * cov_N[j] * J.transpose()).trace())) * kRadToDeg;
+    const double sd = directionRmsAngle(st.N[j], cov_N[j]) * kRadToDeg;
     // A plane that lost most of its tracks as outliers was not one surface (two faces one
     // homography carried at the pair frame, edges, shadows): what is left of it says little.
     const bool mixed = j < static_cast<int>(r.plane_relabelled.size()) && 2 * r.plane_relabelled[j] > r.plane_tracks[j];

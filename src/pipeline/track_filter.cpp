@@ -211,10 +211,8 @@ constexpr double kSamePlaneDeg = 3.0, kSamePlaneResidual = 0.02;
 /// The sd (rad) of the direction of N under covariance C: the larger principal sd of C projected
 /// on the plane orthogonal to N, over |N| (the tangent of the unit normal, (I - n n^T) / |N|).
 double directionSd(const Eigen::Vector3d& N, const Eigen::Matrix3d& C) {
-  const double r = N.norm();
-  if (!(r > 0.0) || !C.allFinite()) return 0.0;
-  const Eigen::Vector3d n = N / r;
-  const Eigen::Matrix3d T = (Eigen::Matrix3d::Identity() - n * n.transpose()) / r;
+  if (!(N.norm() > 0.0) || !C.allFinite()) return 0.0;
+  const Eigen::Matrix3d T = unitDirectionJacobian(N);
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(T * C * T.transpose(), Eigen::EigenvaluesOnly);
   return std::sqrt(std::max(es.eigenvalues()[2], 0.0));
 }
@@ -896,8 +894,8 @@ PlaneAngle planeAngle(const TrackFrame& f, int a, int b) {
   const Eigen::Vector3d na = Na.normalized(), nb = Nb.normalized();
   const double sign = na.dot(nb) < 0 ? -1.0 : 1.0;
   Eigen::Matrix<double, 3, 6> D;
-  D.leftCols<3>() = -(Eigen::Matrix3d::Identity() - na * na.transpose()) / Na.norm();
-  D.rightCols<3>() = sign * (Eigen::Matrix3d::Identity() - nb * nb.transpose()) / Nb.norm();
+  D.leftCols<3>() = -unitDirectionJacobian(Na);
+  D.rightCols<3>() = sign * unitDirectionJacobian(Nb);
   const double sd_rel = std::sqrt(std::max(0.0, (D * C * D.transpose()).trace())) * kRadToDeg;
   constexpr double kDisc95 = 2.4477;  // sqrt(chi2_2(0.95))
   if (p.angle_deg <= kDisc95 * sd_rel) {
@@ -917,7 +915,7 @@ MetricPlane metricPlane(const Eigen::Vector3d& N, double beta, const Eigen::Matr
   p.d = (1.0 + N.z() / beta) / r;
   // Jacobians with respect to (beta, N).
   Eigen::Matrix<double, 3, 4> Jn = Eigen::Matrix<double, 3, 4>::Zero();
-  Jn.rightCols<3>() = (Eigen::Matrix3d::Identity() - p.n * p.n.transpose()) / r;
+  Jn.rightCols<3>() = unitDirectionJacobian(N);
   Eigen::Matrix<double, 1, 4> Jd;
   Jd(0) = -N.z() / (beta * beta * r);
   Jd.rightCols<3>() = Eigen::RowVector3d(0, 0, 1.0 / (beta * r)) - p.d * N.transpose() / (r * r);

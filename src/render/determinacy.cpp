@@ -1,4 +1,5 @@
 #include "rsfm/render/determinacy.hpp"
+#include "rsfm/geometry.hpp"
 #include "rsfm/units.hpp"
 
 #include <fmt/format.h>
@@ -169,9 +170,7 @@ Determinacy analyseDeterminacy(const Scene& scene, const DeterminacyOptions& opt
   if (b.ok && b.beta_estimable) det.crb_focal_rel_sd = std::sqrt(std::max(0.0, b.var_beta));
   for (int j = 0; b.ok && j < m; ++j) {
     if (!b.normal_estimable[j]) continue;
-    const Eigen::Vector3d N = start.N[j], n = N.normalized();
-    const Eigen::Matrix3d J = (Eigen::Matrix3d::Identity() - n * n.transpose()) / N.norm();
-    det.crb_normal_sd_deg[truth_of[j]] = std::sqrt(std::max(0.0, (J * b.cov_N[j] * J.transpose()).trace())) * kRadToDeg;
+    det.crb_normal_sd_deg[truth_of[j]] = directionRmsAngle(start.N[j], b.cov_N[j]) * kRadToDeg;
   }
   det.focal = det.crb_focal_rel_sd && *det.crb_focal_rel_sd <= kDeterminedFocalRelSd;
   double worst = 0;
