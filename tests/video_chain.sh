@@ -123,3 +123,28 @@ patch_chain "$TMP/r" "$TMP/p" 0 "orbit"
 "$RSFM" render box --out "$TMP/d" --frames 100 --elevation 80,50 --approach 0.7 --orbit-deg 10 --width 384 \
   --height 288 --focal-px 500 --quiet
 patch_chain "$TMP/d" "$TMP/pd" 30 "descending"
+
+# Every key these runs wrote into summary.json is named in docs/outputs.md (a new key without its
+# documentation fails here): the plane run, its `rsfm estimate`, the two patch runs. A key counts
+# as named when it is in backticks alone or as the last part of a dotted name (`tracks.total`,
+# `.joined`).
+/usr/bin/python3 - "$(dirname "$0")/../docs/outputs.md" "$TMP"/{e,e2,p,pd}/summary.json <<'PY' || exit 1
+import json, re, sys
+doc = open(sys.argv[1]).read()
+where = {}
+def walk(o, path):
+    if isinstance(o, dict):
+        for k, v in o.items():
+            where.setdefault(k, path + "." + k if path else k)
+            walk(v, path + "." + k if path else k)
+    elif isinstance(o, list):
+        for v in o:
+            walk(v, path + "[]")
+for f in sys.argv[2:]:
+    walk(json.load(open(f)), "")
+missing = sorted(p for k, p in where.items() if not re.search(r"`(?:[\w\[\].]*\.)?" + re.escape(k) + "`", doc))
+print(f"summary.json keys: {len(where)} distinct, {len(missing)} not named in docs/outputs.md{': ' if missing else ''}"
+      f"{', '.join(missing)}")
+sys.exit(1 if missing else 0)
+PY
+echo "ok   every summary.json key is documented"
