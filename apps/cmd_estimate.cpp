@@ -181,6 +181,11 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_option("--principal-point", e->principal_point, "a known principal point X,Y (px), held")
       ->delimiter(',')
       ->expected(2);
+  a->add_option("--rolling-shutter-readout", e->est.rolling_shutter_readout,
+                "a rolling shutter's readout time in frame intervals (0: a global shutter): the tracks are moved to a "
+                "global shutter's positions with their own velocities first (docs/estimate.md section 0; "
+                "bench/rolling_shutter_scan.sh measures it)")
+      ->capture_default_str();
   a->add_option("--refine", e->refine,
                 "final | none (final: a bundle adjustment of the plane model over every frame after the filter, also for the point model's run; docs/estimate.md section 4)")
       ->capture_default_str();
@@ -245,6 +250,8 @@ std::string finishEstimateOptions(EstimateCli* e) {
       return "--principal-point must be two finite numbers X,Y";
     e->est.principal_point = Eigen::Vector2d(e->principal_point[0], e->principal_point[1]);
   }
+  if (e->patches && e->est.rolling_shutter_readout != 0.0)
+    return "--rolling-shutter-readout applies to the point and plane models (--model patches does not correct its patches)";
   if (e->refine == "final") e->est.refine.enabled = true;
   else if (e->refine == "none") e->est.refine.enabled = false;
   else return "--refine must be final or none, got '" + e->refine + "'";
@@ -430,6 +437,7 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
   rep.extra["measurement_noise"] = {{"sigma_px", r.filter_used.sigma_px},
                                     {"floor_px", e.est.filter.sigma_px},
                                     {"from_tracking_noise", r.filter_used.sigma_px > e.est.filter.sigma_px}};
+  rep.extra["rolling_shutter_readout"] = e.est.rolling_shutter_readout;
   rep.extra["stage_seconds"] = {{"plane_finding", r.seconds.plane_finding}, {"start", r.seconds.start},
                                 {"filter", r.seconds.filter}, {"refinement", r.seconds.refinement}};
 }

@@ -185,6 +185,8 @@ cam "$TMP/good.yaml" 640 480 500 500 319.5 239.5
 check "estimate: camera with --focal-px" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/good.yaml" --focal-px 500
 check "estimate: principal point outside the image" 2 "$E" -- estimate --tracks "$CT" --out "$E" --principal-point 900,10
 check "estimate: principal point not a pair" 2 "$E" -- estimate --tracks "$CT" --out "$E" --principal-point 300
+check "estimate: rolling shutter readout out of range" 2 "$E" -- estimate --tracks "$CT" --out "$E" --rolling-shutter-readout 3
+check "estimate: rolling shutter readout with the patch model" 2 "$E" -- estimate --tracks "$CT" --out "$E" --model patches --rolling-shutter-readout 1
 check "render: suite not JSON" 2 "$R" -- render regime a --out "$R" --suite "$TMP/suite4.json"
 if "$RSFM" render box --out "$R" --frames 4 --width 160 --height 120 --focal-px 130 --quiet 2>"$TMP/err.txt" &&
    [ -s "$R/video.mp4" ] && [ "$(grep -vc '^#' "$R/truth/trajectory.tum")" -eq 4 ] &&

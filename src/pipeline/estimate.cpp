@@ -259,13 +259,26 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
                           input.frameNumber(0), input.frameNumber(k))
             : std::string("tracks: no frame has a track"));
   }
+  // A rolling shutter's known readout: the tracks to a global shutter's first (the row is the
+  // sensor's, before any undistortion).
+  Tracks rs_corrected;
+  const Tracks* raw = &input;
+  if (o.rolling_shutter_readout != 0.0) {
+    if (!std::isfinite(o.rolling_shutter_readout) || std::abs(o.rolling_shutter_readout) > kMaxRollingShutterReadout)
+      throw std::invalid_argument(fmt::format("rolling shutter readout {} frames: outside -{} to {} frame intervals",
+                                              o.rolling_shutter_readout, kMaxRollingShutterReadout, kMaxRollingShutterReadout));
+    rs_corrected = correctRollingShutter(input, o.rolling_shutter_readout);
+    raw = &rs_corrected;
+    say(fmt::format("rolling shutter: readout {:g} frame intervals, the tracks moved to a global shutter's positions",
+                    o.rolling_shutter_readout));
+  }
   // A known camera: the tracks onto its ideal pinhole, its intrinsics known.
   EstimateOptions known = o;
   Tracks undistorted;
-  const Tracks* t = &input;
+  const Tracks* t = raw;
   if (o.camera) {
     if (o.filter.focal_px > 0) throw std::invalid_argument("a calibrated camera and a known focal length exclude each other");
-    undistorted = vision::undistortTracks(input, *o.camera);
+    undistorted = vision::undistortTracks(*raw, *o.camera);
     t = &undistorted;
     known.filter.focal_px = o.camera->focal();
     known.refine.estimate_principal_point = false;
@@ -280,7 +293,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
       throw std::invalid_argument(fmt::format("--principal-point ({}, {}) is outside the {}x{} image", pp.x(), pp.y(),
                                               input.image.width, input.image.height));
     if (t != &undistorted) {
-      undistorted = input;
+      undistorted = *raw;
       t = &undistorted;
     }
     undistorted.image.cx = o.principal_point->x();
