@@ -183,7 +183,7 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
       ->expected(2);
   a->add_option("--rolling-shutter-readout", e->est.rolling_shutter_readout,
                 "a rolling shutter's readout time in frame intervals (0: a global shutter): the tracks are moved to a "
-                "global shutter's positions with their own velocities first (docs/estimate.md section 0; "
+                "global shutter's positions with their own velocities first (docs/estimate.md section 6; "
                 "bench/rolling_shutter_scan.sh measures it)")
       ->capture_default_str();
   a->add_option("--refine", e->refine,

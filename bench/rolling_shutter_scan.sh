@@ -6,7 +6,7 @@
 # its planes (labels.csv >= 0, so that every tau sees the same tracks) and refines them with
 # `rsfm estimate --rolling-shutter-readout TAU` (default options otherwise), which moves them back
 # to first order with each track's own velocity (rsfm/track/tracks.hpp, correctRollingShutter;
-# docs/estimate.md section 0). A global shutter's residual sd is lowest at tau = 0 (a rendered
+# docs/estimate.md section 6). A global shutter's residual sd is lowest at tau = 0 (a rendered
 # run: rising with tau); a rolling shutter's near its readout.
 # Usage: bash bench/rolling_shutter_scan.sh BUILD_DIR RUN_DIR [TAU...] (RUN_DIR: an `rsfm run` or
 # `rsfm estimate` output with tracks.csv and labels.csv; default taus 0 0.5 1 1.5). Prints one

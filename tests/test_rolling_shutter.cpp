@@ -1,5 +1,5 @@
 // A rolling shutter's known readout (EstimateOptions::rolling_shutter_readout,
-// correctRollingShutter; docs/estimate.md section 0, "A rolling shutter").
+// correctRollingShutter; docs/estimate.md section 6, "A rolling shutter").
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 

@@ -50,7 +50,7 @@ struct EstimateOptions {
   /// point and distortion are held in the refinement.
   std::optional<vision::CameraCalibration> camera;
   /// A rolling shutter's readout time, in frame intervals (the time from the first row to the
-  /// last; docs/estimate.md section 0, "A rolling shutter"): the tracks are moved to a global
+  /// last; docs/estimate.md section 6, "A rolling shutter"): the tracks are moved to a global
   /// shutter's positions with their own velocities (correctRollingShutter, rsfm/track/tracks.hpp)
   /// before anything else. 0 (the default): a global shutter, the tracks as they are. Known from
   /// the camera or measured (bench/rolling_shutter_scan.sh), not estimated; at most

@@ -79,7 +79,7 @@ std::size_t leadingEmptyFrames(const Frames& frames) {
 /// how many. first_frame (or frame_numbers) follows. A sequence without any track is left as is.
 int trimLeadingEmptyFrames(Tracks* t);
 
-/// A rolling shutter's first-order correction (docs/estimate.md section 0, "A rolling shutter"):
+/// A rolling shutter's first-order correction (docs/estimate.md section 6, "A rolling shutter"):
 /// a sensor that reads its rows one after another over `readout` frame intervals (0: a global
 /// shutter; the middle row at the frame's time) sees a point moving at v px/frame at
 /// x_gs + readout (y - (height - 1) / 2) / height v. Each observation is moved back by that, v its
