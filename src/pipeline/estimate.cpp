@@ -265,7 +265,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   const Tracks* raw = &input;
   if (o.rolling_shutter_readout != 0.0) {
     if (!std::isfinite(o.rolling_shutter_readout) || std::abs(o.rolling_shutter_readout) > kMaxRollingShutterReadout)
-      throw std::invalid_argument(fmt::format("rolling shutter readout {} frames: outside -{} to {} frame intervals",
+      throw std::invalid_argument(fmt::format("rolling shutter readout {} frame intervals: outside -{} to {}",
                                               o.rolling_shutter_readout, kMaxRollingShutterReadout, kMaxRollingShutterReadout));
     rs_corrected = correctRollingShutter(input, o.rolling_shutter_readout);
     raw = &rs_corrected;
