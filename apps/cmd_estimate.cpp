@@ -182,10 +182,9 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
       ->delimiter(',')
       ->expected(2);
   a->add_option("--rolling-shutter-readout", e->est.rolling_shutter_readout,
-                "a rolling shutter's readout time in frame intervals (0: a global shutter): the tracks are moved to a "
-                "global shutter's positions with their own velocities first (docs/estimate.md section 6; "
-                "bench/rolling_shutter_scan.sh measures it)")
-      ->capture_default_str();
+                "a rolling shutter's known readout time in frame intervals (0: a global shutter): the tracks are moved "
+                "to a global shutter's positions with their own velocities first and the refinement does not "
+                "estimate it (default: estimated; docs/estimate.md section 6)");
   a->add_option("--refine", e->refine,
                 "final | none (final: a bundle adjustment of the plane model over every frame after the filter, also for the point model's run; docs/estimate.md section 4)")
       ->capture_default_str();
@@ -250,7 +249,7 @@ std::string finishEstimateOptions(EstimateCli* e) {
       return "--principal-point must be two finite numbers X,Y";
     e->est.principal_point = Eigen::Vector2d(e->principal_point[0], e->principal_point[1]);
   }
-  if (e->patches && e->est.rolling_shutter_readout != 0.0)
+  if (e->patches && e->est.rolling_shutter_readout.value_or(0.0) != 0.0)
     return "--rolling-shutter-readout applies to the point and plane models (--model patches does not correct its patches)";
   if (e->refine == "final") e->est.refine.enabled = true;
   else if (e->refine == "none") e->est.refine.enabled = false;
@@ -437,7 +436,8 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
   rep.extra["measurement_noise"] = {{"sigma_px", r.filter_used.sigma_px},
                                     {"floor_px", e.est.filter.sigma_px},
                                     {"from_tracking_noise", r.filter_used.sigma_px > e.est.filter.sigma_px}};
-  rep.extra["rolling_shutter_readout"] = e.est.rolling_shutter_readout;
+  rep.extra["rolling_shutter_readout"] =
+      e.est.rolling_shutter_readout ? nlohmann::json(*e.est.rolling_shutter_readout) : nlohmann::json(nullptr);
   rep.extra["stage_seconds"] = {{"plane_finding", r.seconds.plane_finding}, {"start", r.seconds.start},
                                 {"filter", r.seconds.filter}, {"refinement", r.seconds.refinement}};
 }

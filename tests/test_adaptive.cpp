@@ -770,16 +770,20 @@ TEST(Adaptive, TheReferenceFrameIsWhereTheSceneStartsToMoveAndLaterStillFramesAr
       EXPECT_TRUE(s.held.empty()) << s.held.size() << " frames held, from " << s.held.front();
     }
     if (still == 0 && middle == 0) continue;
-    // The pipeline on the whole sequence is the pipeline on its moving frames (cut by hand), with
-    // the still frames carrying the pose of the frame before them.
+    // The pipeline on the whole sequence is the pipeline on its moving frames (cut by hand, with
+    // their frame numbers: a track's velocity, for the rolling shutter's readout, is per frame
+    // interval), with the still frames carrying the pose of the frame before them.
     std::vector<int> kept;
     Tracks cut = rt.tracks;
     cut.frames.clear();
+    cut.frame_numbers.clear();
     for (int k = s.still_frames; k < rt.tracks.numFrames(); ++k)
       if (!std::binary_search(s.held.begin(), s.held.end(), k)) {
         kept.push_back(k);
         cut.frames.push_back(rt.tracks.frames[k]);
+        cut.frame_numbers.push_back(rt.tracks.frameNumber(k));
       }
+    cut.first_frame = cut.frame_numbers.front();
     const EstimateResult whole = estimate(rt.tracks, EstimateOptions{});
     const EstimateResult moving = estimate(cut, EstimateOptions{});
     ASSERT_TRUE(whole.refined.ok) << whole.refined.message;

@@ -456,16 +456,32 @@ TEST(PlaneBatch, ResidualThroughTheCameraAndItsJacobians) {
   test::expectJacobian(g, q, J0, 1e-6, "reference residual through the camera");
 }
 
-TEST(PlaneBatchBound, CameraAndMotionCovarianceAgainstTheDenseInverse) {
-  // A small distorted problem: the bound with the camera free and the motions' covariance,
-  // against the inverse of the full information matrix built from central differences of the
-  // residuals over every parameter (motions, beta, N but the gauge, references, camera).
+/// A small distorted problem, seen through a rolling shutter with `readout` (0: a global
+/// shutter, no readout parameter): the bound with the camera (and the readout) free and the
+/// motions' covariance, against the inverse of the full information matrix built from central
+/// differences of the residuals over every parameter (motions, beta, N but the gauge, references,
+/// camera[, readout]). With a readout, the exact observations are also solved from a start away
+/// from it, which must return to it.
+void checkBoundAgainstTheDenseInverse(double readout) {
   Sequence s = makeSequence(1.0, 11, 8);
   PlaneBatchState st = truthState(s);
   st.camera << 0.01, -0.02, -0.15, 0.03;
+  st.readout = readout;
+  const bool with_readout = readout != 0.0;
   const int F = 8, Np = static_cast<int>(s.scene.points.size());
+  // The shifts: what a track moving by its neighbouring frames' difference would get, (y / 2)
+  // times it (normalized coordinates, |y| < 1 on this scene).
+  if (with_readout) {
+    s.data.readout_shift.resize(F + 1);
+    for (int k = 0; k <= F; ++k)
+      for (const auto& o : s.data.frames[k]) {
+        const int a = std::max(0, k - 1), b = std::min(F, k + 1);
+        s.data.readout_shift[k].push_back(0.5 * s.uv[k][o.id].y() * (s.uv[b][o.id] - s.uv[a][o.id]) / (b - a));
+      }
+  }
   for (int k = 0; k <= F; ++k)
-    for (auto& o : s.data.frames[k]) {
+    for (std::size_t j = 0; j < s.data.frames[k].size(); ++j) {
+      auto& o = s.data.frames[k][j];
       Eigen::Vector2d r;
       if (k == 0) {
         planeBatchReferenceResidual(st.ref[o.id], st.beta, st.camera, Eigen::Vector2d::Zero(), 1.0, &r, nullptr, nullptr, nullptr);
@@ -473,23 +489,27 @@ TEST(PlaneBatchBound, CameraAndMotionCovarianceAgainstTheDenseInverse) {
         planeBatchResidual(st.t[k], Eigen::Vector3d::Zero(), st.R[k], st.beta, st.N[0], st.ref[o.id], Eigen::Vector2d::Zero(),
                            1.0, &r, nullptr, nullptr, nullptr, nullptr, &st.camera, nullptr);
       }
-      o.uv = r;  // exact observations
+      o.uv = r + readout * s.data.shift(k, j);  // exact observations
     }
   PlaneBatchBoundOptions bo;
   bo.camera_free = {true, true, true, true};
+  bo.readout_free = with_readout;
   bo.motion_covariance = true;
   const PlaneBatchBound b = planeBatchBound(s.data, st, bo);
   ASSERT_TRUE(b.ok) << b.message;
   EXPECT_EQ(b.null_dim, 0);
-  // Parameters: motions 6F, beta, N_X, N_Y (N_Z is the gauge), refs 2Np, camera 4.
-  const int n = 6 * F + 3 + 2 * Np + 4;
+  // Parameters: motions 6F, beta, N_X, N_Y (N_Z is the gauge), refs 2Np, camera 4[, readout].
+  const int nc = with_readout ? 5 : 4;
+  const int n = 6 * F + 3 + 2 * Np + nc;
   auto residuals = [&](const Eigen::VectorXd& p, Eigen::VectorXd* y) {
     std::vector<double> out;
     const double beta = p[6 * F];
     const Eigen::Vector3d N(p[6 * F + 1], p[6 * F + 2], st.N[0].z());
-    const Eigen::Vector4d cam = p.tail<4>();
+    const Eigen::Vector4d cam = p.segment<4>(n - nc);
+    const double tau = with_readout ? p[n - 1] : 0.0;
     for (int k = 0; k <= F; ++k)
-      for (const auto& o : s.data.frames[k]) {
+      for (std::size_t j = 0; j < s.data.frames[k].size(); ++j) {
+        const auto& o = s.data.frames[k][j];
         const Eigen::Vector2d ref = p.segment<2>(6 * F + 3 + 2 * o.id);
         Eigen::Vector2d r;
         if (k == 0) {
@@ -498,6 +518,7 @@ TEST(PlaneBatchBound, CameraAndMotionCovarianceAgainstTheDenseInverse) {
                                       s.data.sigma_uv, &r, nullptr, nullptr, nullptr, nullptr, &cam, nullptr) != MeasureStatus::Ok) {
           return false;
         }
+        r += tau / s.data.sigma_uv * s.data.shift(k, j);
         out.push_back(r[0]);
         out.push_back(r[1]);
       }
@@ -510,18 +531,47 @@ TEST(PlaneBatchBound, CameraAndMotionCovarianceAgainstTheDenseInverse) {
   p0[6 * F + 1] = st.N[0].x();
   p0[6 * F + 2] = st.N[0].y();
   for (int i = 0; i < Np; ++i) p0.segment<2>(6 * F + 3 + 2 * i) = st.ref[i];
-  p0.tail<4>() = st.camera;
+  p0.segment<4>(n - nc) = st.camera;
+  if (with_readout) p0[n - 1] = readout;
   Eigen::VectorXd y0;
   ASSERT_TRUE(residuals(p0, &y0));
   const test::JacobianCheck numeric = test::centralDifference(residuals, p0, Eigen::MatrixXd::Zero(y0.size(), n), 1e-6);
   const Eigen::MatrixXd C = (numeric.numeric.transpose() * numeric.numeric).inverse();
+  const int ic = n - nc;  // the camera's first column
   EXPECT_NEAR(b.var_beta / C(6 * F, 6 * F), 1.0, 1e-4);
   for (int a = 0; a < 4; ++a)
     for (int c = 0; c < 4; ++c)
-      EXPECT_NEAR(b.cov_camera(a, c), C(n - 4 + a, n - 4 + c), 1e-4 * std::sqrt(C(n - 4 + a, n - 4 + a) * C(n - 4 + c, n - 4 + c)));
+      EXPECT_NEAR(b.cov_camera(a, c), C(ic + a, ic + c), 1e-4 * std::sqrt(C(ic + a, ic + a) * C(ic + c, ic + c)));
   for (int k : {1, 4, 8})
     for (int a = 0; a < 6; ++a)
       EXPECT_NEAR(b.cov_motion[k](a, a) / C(6 * (k - 1) + a, 6 * (k - 1) + a), 1.0, 1e-4) << "frame " << k << " component " << a;
+  if (!with_readout) return;
+  EXPECT_TRUE(b.readout_estimable);
+  EXPECT_NEAR(b.var_readout / C(n - 1, n - 1), 1.0, 1e-4);
+  for (int c = 0; c < 4; ++c)
+    EXPECT_NEAR(b.cov_readout_camera[c], C(n - 1, ic + c), 1e-4 * std::sqrt(C(n - 1, n - 1) * C(ic + c, ic + c)));
+  // The solve: from the truth with the readout at 0 (a global shutter assumed), it returns to it.
+  PlaneBatchState start = st;
+  start.readout = 0.0;
+  PlaneBatchOptions so;
+  so.camera_free = {true, true, true, true};
+  so.readout_free = true;
+  const PlaneBatchResult r = solvePlaneBatch(s.data, start, so);
+  ASSERT_TRUE(r.converged) << r.message;
+  EXPECT_NEAR(r.state.readout, readout, 1e-6);
+  EXPECT_NEAR(r.state.beta, st.beta, 1e-6);
+  // Held (not free) at the truth, it stays there; held at 0 the fit is worse.
+  so.readout_free = false;
+  const PlaneBatchResult held0 = solvePlaneBatch(s.data, start, so);
+  ASSERT_TRUE(held0.converged) << held0.message;
+  EXPECT_EQ(held0.state.readout, 0.0);
+  EXPECT_GT(held0.final_cost, 1e3 * std::max(r.final_cost, 1e-12));
+}
+
+TEST(PlaneBatchBound, CameraAndMotionCovarianceAgainstTheDenseInverse) { checkBoundAgainstTheDenseInverse(0.0); }
+
+TEST(PlaneBatchBound, TheRollingShuttersReadoutAgainstTheDenseInverseAndTheSolveFindsIt) {
+  checkBoundAgainstTheDenseInverse(0.7);
 }
 
 TEST(PlaneBatch, GroupedReferenceBlocksReachTheSameOptimum) {

@@ -15,5 +15,9 @@ inline constexpr double kDeterminedNormalSdDeg = 5.0;
 inline constexpr double kDeterminedPrincipalPointSdFraction = 0.01;
 /// A radial distortion coefficient (k1, k2): sd at most 0.02.
 inline constexpr double kDeterminedDistortionSd = 0.02;
+/// A rolling shutter's readout (frame intervals, first row to last): sd at most 0.25, a 95 %
+/// interval within about +-0.5 frame intervals, which tells a global shutter (0) from a sensor
+/// that reads its rows over the frame interval (1: webcams, phones).
+inline constexpr double kDeterminedReadoutSd = 0.25;
 
 }  // namespace rsfm

@@ -160,13 +160,33 @@ struct RefSlot {
   }
 };
 
-/// One observation at frame k >= 1. Parameter blocks: motion (6), beta (1), N (3)[, ref (2 group)][, camera (4)].
+/// A rolling shutter's readout (PlaneBatchData::readout_shift) in a residual: the prediction
+/// moved by readout x shift, so the whitened residual by readout x shift / sigma, which is also
+/// its Jacobian with respect to the readout (one more parameter block, the last, of size 1).
+struct ReadoutTerm {
+  bool on = false;
+  Eigen::Vector2d shift = Eigen::Vector2d::Zero();
+  /// Adds the term to `residuals` and writes the block's Jacobian; `block` is the readout's.
+  void apply(const double* block, double sigma, double* residuals, double* jacobian) const {
+    const double w = 1.0 / sigma;
+    residuals[0] += block[0] * shift.x() * w;
+    residuals[1] += block[0] * shift.y() * w;
+    if (jacobian) {
+      jacobian[0] = shift.x() * w;
+      jacobian[1] = shift.y() * w;
+    }
+  }
+};
+
+/// One observation at frame k >= 1. Parameter blocks: motion (6), beta (1), N (3)[, ref (2 group)][, camera (4)][,
+/// readout (1)].
 class ObservationCost final : public ceres::CostFunction {
  public:
   ObservationCost(const Eigen::Matrix3d& R_base, const Eigen::Vector2d& z, double sigma,
-                  const Eigen::Vector2d* fixed_ref, bool camera, MotionCache* mc, PointCache* pc, RefSlot slot = {})
+                  const Eigen::Vector2d* fixed_ref, bool camera, MotionCache* mc, PointCache* pc, RefSlot slot = {},
+                  ReadoutTerm readout = {})
       : R_base_(R_base), z_(z), sigma_(sigma), has_fixed_ref_(fixed_ref != nullptr), camera_(camera), mc_(mc), pc_(pc),
-        slot_(slot) {
+        slot_(slot), readout_(readout) {
     if (fixed_ref) fixed_ref_ = *fixed_ref;
     set_num_residuals(2);
     mutable_parameter_block_sizes()->push_back(6);
@@ -174,6 +194,7 @@ class ObservationCost final : public ceres::CostFunction {
     mutable_parameter_block_sizes()->push_back(3);
     if (!has_fixed_ref_) mutable_parameter_block_sizes()->push_back(2 * slot_.group);
     if (camera_) mutable_parameter_block_sizes()->push_back(4);
+    if (readout_.on) mutable_parameter_block_sizes()->push_back(1);
   }
 
   bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
@@ -212,6 +233,10 @@ class ObservationCost final : public ceres::CostFunction {
       return false;  // Ceres treats the step as unsuccessful and shrinks it
     residuals[0] = r[0];
     residuals[1] = r[1];
+    if (readout_.on) {
+      const int b = cam_block + (camera_ ? 1 : 0);
+      readout_.apply(params[b], sigma_, residuals, jacobians ? jacobians[b] : nullptr);
+    }
     if (jacobians) {
       using M26 = Eigen::Matrix<double, 2, 6, Eigen::RowMajor>;
       using M23 = Eigen::Matrix<double, 2, 3, Eigen::RowMajor>;
@@ -245,21 +270,23 @@ class ObservationCost final : public ceres::CostFunction {
   MotionCache* mc_;
   PointCache* pc_;
   RefSlot slot_;
+  ReadoutTerm readout_;
   Eigen::Vector2d fixed_ref_ = Eigen::Vector2d::Zero();
 };
 
 /// One observation at frame k >= 1 under pure rotation. Blocks: motion (6; its translation held),
-/// beta (1), ref (2)[, camera (4)].
+/// beta (1), ref (2)[, camera (4)][, readout (1)].
 class RotationObservationCost final : public ceres::CostFunction {
  public:
   RotationObservationCost(const Eigen::Matrix3d& R_base, const Eigen::Vector2d& z, double sigma, bool camera,
-                          RefSlot slot = {})
-      : R_base_(R_base), z_(z), sigma_(sigma), camera_(camera), slot_(slot) {
+                          RefSlot slot = {}, ReadoutTerm readout = {})
+      : R_base_(R_base), z_(z), sigma_(sigma), camera_(camera), slot_(slot), readout_(readout) {
     set_num_residuals(2);
     mutable_parameter_block_sizes()->push_back(6);
     mutable_parameter_block_sizes()->push_back(1);
     mutable_parameter_block_sizes()->push_back(2 * slot_.group);
     if (camera_) mutable_parameter_block_sizes()->push_back(4);
+    if (readout_.on) mutable_parameter_block_sizes()->push_back(1);
   }
   bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
     const Eigen::Vector3d omega(params[0][3], params[0][4], params[0][5]);
@@ -275,6 +302,10 @@ class RotationObservationCost final : public ceres::CostFunction {
       return false;
     residuals[0] = r[0];
     residuals[1] = r[1];
+    if (readout_.on) {
+      const int b = camera_ ? 4 : 3;
+      readout_.apply(params[b], sigma_, residuals, jacobians ? jacobians[b] : nullptr);
+    }
     if (jacobians) {
       if (jacobians[0]) {
         Eigen::Map<Eigen::Matrix<double, 2, 6, Eigen::RowMajor>> J0(jacobians[0]);
@@ -300,6 +331,7 @@ class RotationObservationCost final : public ceres::CostFunction {
   double sigma_;
   bool camera_;
   RefSlot slot_;
+  ReadoutTerm readout_;
 };
 
 /// Gaussian priors on the camera's components about zero: (camera_c / sd_c) for sd_c > 0.
@@ -321,14 +353,30 @@ class CameraPriorCost final : public ceres::SizedCostFunction<4, 4> {
   std::array<double, 4> w_{};
 };
 
-/// Reference-frame observation through the camera: blocks ref (2 group), beta (1), camera (4).
+/// A Gaussian prior on the readout about zero: readout / sd.
+class ReadoutPriorCost final : public ceres::SizedCostFunction<1, 1> {
+ public:
+  explicit ReadoutPriorCost(double sd) : w_(1.0 / sd) {}
+  bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
+    residuals[0] = params[0][0] * w_;
+    if (jacobians && jacobians[0]) jacobians[0][0] = w_;
+    return true;
+  }
+
+ private:
+  double w_;
+};
+
+/// Reference-frame observation through the camera: blocks ref (2 group), beta (1), camera (4)[, readout (1)].
 class ReferenceCameraCost final : public ceres::CostFunction {
  public:
-  ReferenceCameraCost(const Eigen::Vector2d& z, double sigma, RefSlot slot = {}) : z_(z), sigma_(sigma), slot_(slot) {
+  ReferenceCameraCost(const Eigen::Vector2d& z, double sigma, RefSlot slot = {}, ReadoutTerm readout = {})
+      : z_(z), sigma_(sigma), slot_(slot), readout_(readout) {
     set_num_residuals(2);
     mutable_parameter_block_sizes()->push_back(2 * slot_.group);
     mutable_parameter_block_sizes()->push_back(1);
     mutable_parameter_block_sizes()->push_back(4);
+    if (readout_.on) mutable_parameter_block_sizes()->push_back(1);
   }
   bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
     const Eigen::Vector2d ref = slot_.read(params[0]);
@@ -339,6 +387,7 @@ class ReferenceCameraCost final : public ceres::CostFunction {
     planeBatchReferenceResidual(ref, params[1][0], cam, z_, sigma_, &r, &Ju, &Jb, &Jc);
     residuals[0] = r[0];
     residuals[1] = r[1];
+    if (readout_.on) readout_.apply(params[3], sigma_, residuals, jacobians ? jacobians[3] : nullptr);
     if (jacobians) {
       if (jacobians[0]) slot_.write(Ju, jacobians[0]);
       if (jacobians[1]) {
@@ -357,6 +406,7 @@ class ReferenceCameraCost final : public ceres::CostFunction {
   Eigen::Vector2d z_;
   double sigma_;
   RefSlot slot_;
+  ReadoutTerm readout_;
 };
 
 /// Reference-frame observation of a point whose reference position is a parameter (block: ref (2 group)).
@@ -413,11 +463,11 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   std::vector<Eigen::Matrix<double, 6, 1>> motion(F + 1, Eigen::Matrix<double, 6, 1>::Zero());
   for (int k = 1; k <= F; ++k) motion[k].head<3>() = start.t[k];
   // One buffer for every parameter but the motions, in a fixed order (beta, the planes, the
-  // camera, the references): Ceres orders the blocks of one elimination group by address, so
+  // camera, the references, the readout): Ceres orders the blocks of one elimination group by address, so
   // this layout fixes the arithmetic whatever the heap looked like (every caller gets the same
   // numbers for the same problem).
   const int m = data.num_planes;
-  std::vector<double> store(1 + 3 * m + 4 + 2 * P);
+  std::vector<double> store(1 + 3 * m + 4 + 2 * P + 1);
   double& beta = store[0];
   beta = start.beta;
   std::vector<Eigen::Map<Eigen::Vector3d>> N;
@@ -432,8 +482,29 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
     ref.emplace_back(store.data() + 1 + 3 * m + 4 + 2 * i);
     ref.back() = start.ref[i];
   }
+  // The readout: a parameter block of its own whenever the data carry a rolling shutter's shifts
+  // and it is free or non-zero; it then goes with the camera's block (held at zero when unused:
+  // RadialCamera of the zero camera is the identity), so the frame-0 residuals have one form.
+  if (data.hasReadout() && (static_cast<int>(data.readout_shift.size()) != F + 1 ||
+                            [&] {
+                              for (int k = 0; k <= F; ++k)
+                                if (data.readout_shift[k].size() != data.frames[k].size()) return true;
+                              return false;
+                            }())) {
+    res.message = "batch: readout_shift does not match the observations";
+    return res;
+  }
+  double& readout = store.back();
+  readout = start.readout;
+  const bool use_readout = data.hasReadout() && (options.readout_free || readout != 0.0);
   const bool use_camera = std::any_of(options.camera_free.begin(), options.camera_free.end(), [](bool b) { return b; }) ||
-                          !camera.isZero(0.0);
+                          !camera.isZero(0.0) || use_readout;
+  auto readoutTerm = [&](int k, std::size_t j) {
+    ReadoutTerm t;
+    t.on = use_readout;
+    if (use_readout) t.shift = data.readout_shift[k][j];
+    return t;
+  };
   ceres::LossFunction* loss = nullptr;  // one instance for every residual, owned by loss_owner
   if (options.loss == PlaneBatchOptions::Loss::Huber) loss = new ceres::HuberLoss(options.loss_scale);
   if (options.loss == PlaneBatchOptions::Loss::Cauchy) loss = new ceres::CauchyLoss(options.loss_scale);
@@ -469,6 +540,12 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
     if (std::any_of(prior.begin(), prior.end(), [](double v) { return v > 0; }))
       problem.AddResidualBlock(new CameraPriorCost(prior), nullptr, camera.data());
   }
+  if (use_readout) {
+    problem.AddParameterBlock(&readout, 1);
+    if (!options.readout_free) problem.SetParameterBlockConstant(&readout);
+    if (options.readout_free && options.readout_prior_sd > 0)
+      problem.AddResidualBlock(new ReadoutPriorCost(options.readout_prior_sd), nullptr, &readout);
+  }
   // The references' parameter blocks: with the motions eliminated first, Ceres' Schur
   // elimination updates the reduced matrix one cell per pair of blocks seen in a frame, each cell
   // behind a lock (docs/performance.md, "The refinement"); `reference_group` consecutive points
@@ -494,9 +571,13 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   }
   auto refBlock = [&](int i) { return ref[i - slot[i].index].data(); };  // its group's first point
   if (options.estimate_references) {
-    for (const Observation& o : data.frames[0]) {
+    for (std::size_t j = 0; j < data.frames[0].size(); ++j) {
+      const Observation& o = data.frames[0][j];
       if (o.id < 0 || o.id >= P) continue;
-      if (use_camera)
+      if (use_readout)
+        problem.AddResidualBlock(new ReferenceCameraCost(o.uv, data.sigma_uv, slot[o.id], readoutTerm(0, j)), loss,
+                                 refBlock(o.id), &beta, camera.data(), &readout);
+      else if (use_camera)
         problem.AddResidualBlock(new ReferenceCameraCost(o.uv, data.sigma_uv, slot[o.id]), loss, refBlock(o.id), &beta,
                                  camera.data());
       else
@@ -507,23 +588,27 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   std::vector<MotionCache> motion_cache(F + 1);
   std::vector<PointCache> point_cache(P);
   for (int k = 1; k <= F; ++k)
-    for (const Observation& o : data.frames[k]) {
+    for (std::size_t j = 0; j < data.frames[k].size(); ++j) {
+      const Observation& o = data.frames[k][j];
       if (o.id < 0 || o.id >= P) continue;
       const int l = data.labels[o.id];
       if (options.rotation_only) {
         std::vector<double*> rblocks{motion[k].data(), &beta, refBlock(o.id)};
         if (use_camera) rblocks.push_back(camera.data());
-        problem.AddResidualBlock(new RotationObservationCost(start.R[k], o.uv, data.sigma_uv, use_camera, slot[o.id]), loss,
-                                 rblocks);
+        if (use_readout) rblocks.push_back(&readout);
+        problem.AddResidualBlock(
+            new RotationObservationCost(start.R[k], o.uv, data.sigma_uv, use_camera, slot[o.id], readoutTerm(k, j)), loss,
+            rblocks);
         ++res.residuals;
         continue;
       }
       std::vector<double*> blocks{motion[k].data(), &beta, N[l].data()};
       if (options.estimate_references) blocks.push_back(refBlock(o.id));
       if (use_camera) blocks.push_back(camera.data());
+      if (use_readout) blocks.push_back(&readout);
       problem.AddResidualBlock(
           new ObservationCost(start.R[k], o.uv, data.sigma_uv, options.estimate_references ? nullptr : &start.ref[o.id], use_camera,
-                              &motion_cache[k], &point_cache[o.id], slot[o.id]),
+                              &motion_cache[k], &point_cache[o.id], slot[o.id], readoutTerm(k, j)),
           loss, blocks);
       ++res.residuals;
     }
@@ -539,6 +624,7 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
     for (auto& u : ref)
       if (problem.HasParameterBlock(u.data())) ordering->AddElementToGroup(u.data(), 1);
     if (use_camera) ordering->AddElementToGroup(camera.data(), 1);
+    if (use_readout) ordering->AddElementToGroup(&readout, 1);
     so.linear_solver_ordering = ordering;
     so.linear_solver_type = ceres::DENSE_SCHUR;
   }
@@ -574,6 +660,7 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   res.state.N.assign(N.begin(), N.end());
   res.state.ref.assign(ref.begin(), ref.end());
   res.state.camera = camera;
+  res.state.readout = readout;
 
   if (options.compute_covariance && res.converged && !options.hold_beta && !options.rotation_only) {
     ceres::Covariance::Options co;

@@ -11,7 +11,8 @@
 
 namespace rsfm {
 
-bool PlaneBatchBound::estimable(double g_beta, const std::vector<Eigen::Vector3d>& g_N, const Eigen::Vector4d& g_camera) const {
+bool PlaneBatchBound::estimable(double g_beta, const std::vector<Eigen::Vector3d>& g_N, const Eigen::Vector4d& g_camera,
+                                double g_readout) const {
   if (!ok) return false;
   const int n = static_cast<int>(scale.size());
   Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
@@ -28,6 +29,10 @@ bool PlaneBatchBound::estimable(double g_beta, const std::vector<Eigen::Vector3d
     else if (g_camera[c] != 0)
       return false;  // a held component is not a parameter
   }
+  if (readout_index >= 0)
+    g[readout_index] = g_readout;
+  else if (g_readout != 0)
+    return false;
   if (g.norm() == 0) return true;
   if (null_scaled.cols() == 0) return true;
   const Eigen::VectorXd gs = scale.cwiseProduct(g);
@@ -190,8 +195,20 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     out.message = "bound: inconsistent problem sizes";
     return out;
   }
-  const bool use_camera =
-      std::any_of(opt.camera_free.begin(), opt.camera_free.end(), [](bool b) { return b; }) || !at.camera.isZero(0.0);
+  if (data.hasReadout() && static_cast<int>(data.readout_shift.size()) != F + 1) {
+    out.message = "bound: readout_shift does not match the observations";
+    return out;
+  }
+  for (int k = 0; k <= F && data.hasReadout(); ++k)
+    if (data.readout_shift[k].size() != data.frames[k].size()) {
+      out.message = "bound: readout_shift does not match the observations";
+      return out;
+    }
+  // A rolling shutter's readout moves each prediction by readout x shift (plane_batch.hpp); as a
+  // parameter it is one more column, shift / sigma.
+  const bool use_readout = data.hasReadout() && (opt.readout_free || at.readout != 0.0);
+  const bool use_camera = std::any_of(opt.camera_free.begin(), opt.camera_free.end(), [](bool b) { return b; }) ||
+                          !at.camera.isZero(0.0) || use_readout;
   const Eigen::Vector4d* cam = use_camera ? &at.camera : nullptr;
   // Kept parameters: refs (2P), beta (1), the planes (3m minus the gauge component), the free
   // camera components.
@@ -204,6 +221,8 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       if (!(j == data.gauge_plane && c == data.gauge_component)) out.N_index[3 * j + c] = n++;
   for (int c = 0; c < 4; ++c)
     if (opt.camera_free[c]) out.camera_index[c] = n++;
+  if (use_readout && opt.readout_free) out.readout_index = n++;
+  const int iR = out.readout_index;
   const std::vector<int>& iN = out.N_index;
   const std::array<int, 4>& iC = out.camera_index;
   out.parameters = n;
@@ -211,13 +230,16 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
   // Priors on the free camera components.
   for (int c = 0; c < 4; ++c)
     if (iC[c] >= 0 && opt.camera_prior_sd[c] > 0) S(iC[c], iC[c]) += 1.0 / (opt.camera_prior_sd[c] * opt.camera_prior_sd[c]);
-  // Frame 0: reference residuals (RadialCamera(ref) - z) / sigma. `gidx` receives the kept
-  // columns of the observation's Jacobian `J` (q of them).
-  auto referenceRow = [&](const Observation& o, Eigen::Vector2d* r, int* gidx, Eigen::Matrix<double, 2, 7>* J) {
+  if (iR >= 0 && opt.readout_prior_sd > 0) S(iR, iR) += 1.0 / (opt.readout_prior_sd * opt.readout_prior_sd);
+  // Frame 0: reference residuals (RadialCamera(ref) + readout shift - z) / sigma. `gidx`
+  // receives the kept columns of the observation's Jacobian `J` (q of them).
+  auto referenceRow = [&](const Observation& o, const Eigen::Vector2d& shift, Eigen::Vector2d* r, int* gidx,
+                          Eigen::Matrix<double, 2, 8>* J) {
     Eigen::Vector2d Jb;
     Eigen::Matrix2d Ju;
     Eigen::Matrix<double, 2, 4> Jc;
     planeBatchReferenceResidual(at.ref[o.id], at.beta, at.camera, o.uv, data.sigma_uv, r, &Ju, &Jb, &Jc);
+    if (use_readout) *r += at.readout / data.sigma_uv * shift;
     int q = 0;
     for (int a = 0; a < 2; ++a) {
       gidx[q] = 2 * o.id + a;
@@ -233,24 +255,29 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
           gidx[q] = iC[c];
           J->col(q++) = Jc.col(c);
         }
+      if (iR >= 0) {
+        gidx[q] = iR;
+        J->col(q++) = shift / data.sigma_uv;
+      }
     }
     return q;
   };
-  for (const Observation& o : data.frames[0]) {
+  for (std::size_t j = 0; j < data.frames[0].size(); ++j) {
+    const Observation& o = data.frames[0][j];
     if (o.id < 0 || o.id >= P) continue;
     Eigen::Vector2d r;
-    int idx[7];
-    Eigen::Matrix<double, 2, 7> J;
-    const int q = referenceRow(o, &r, idx, &J);
-    // At most 7 x 7: fixed storage, no heap allocation per observation.
-    const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, 7, 7> JtJ = J.leftCols(q).transpose() * J.leftCols(q);
+    int idx[8];
+    Eigen::Matrix<double, 2, 8> J;
+    const int q = referenceRow(o, data.shift(0, j), &r, idx, &J);
+    // At most 8 x 8: fixed storage, no heap allocation per observation.
+    const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, 8, 8> JtJ = J.leftCols(q).transpose() * J.leftCols(q);
     for (int a = 0; a < q; ++a)
       for (int b = 0; b < q; ++b) S(idx[a], idx[b]) += JtJ(a, b);
   }
   // One observation at frame k >= 1: its whitened residual, motion Jacobian and the Jacobian of
   // its kept columns (`gidx`, q of them); false when it cannot be projected.
-  auto frameRow = [&](int k, const Observation& o, Eigen::Vector2d* r, Eigen::Matrix<double, 2, 6>* Jm, int* gidx,
-                      Eigen::Matrix<double, 2, 10>* Jc, int* q) {
+  auto frameRow = [&](int k, const Observation& o, const Eigen::Vector2d& shift, Eigen::Vector2d* r,
+                      Eigen::Matrix<double, 2, 6>* Jm, int* gidx, Eigen::Matrix<double, 2, 11>* Jc, int* q) {
     const int l = data.labels[o.id];
     Eigen::Vector2d Jb;
     Eigen::Matrix<double, 2, 3> JN;
@@ -259,6 +286,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     if (planeBatchResidual(at.t[k], Eigen::Vector3d::Zero(), at.R[k], at.beta, at.N[l], at.ref[o.id], o.uv,
                            data.sigma_uv, r, Jm, &Jb, &JN, &Ju, cam, cam ? &Jcam : nullptr) != MeasureStatus::Ok)
       return false;
+    if (use_readout) *r += at.readout / data.sigma_uv * shift;
     *q = 0;
     if (iBeta >= 0) {
       gidx[*q] = iBeta;
@@ -278,6 +306,10 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
         gidx[*q] = iC[a];
         Jc->col((*q)++) = Jcam.col(a);
       }
+    if (iR >= 0) {
+      gidx[*q] = iR;
+      Jc->col((*q)++) = shift / data.sigma_uv;
+    }
     return true;
   };
   // Frames k >= 1: accumulate the frame's block [motion (6) | kept columns it touches], then
@@ -318,29 +350,31 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     }
     for (int c = 0; c < 4; ++c)
       if (iC[c] >= 0) cols.push_back(iC[c]);
+    if (iR >= 0) cols.push_back(iR);
     std::sort(cols.begin(), cols.end());
     cols.erase(std::unique(cols.begin(), cols.end()), cols.end());
     const int c = static_cast<int>(cols.size());
     auto local = [&](int global) { return static_cast<int>(std::lower_bound(cols.begin(), cols.end(), global) - cols.begin()); };
     Eigen::Matrix<double, 6, 6> Hmm = Eigen::Matrix<double, 6, 6>::Zero();
     Eigen::MatrixXd Hmc = Eigen::MatrixXd::Zero(6, c), Hcc = Eigen::MatrixXd::Zero(c, c);
-    for (const Observation& o : obs) {
+    for (std::size_t j = 0; j < obs.size(); ++j) {
+      const Observation& o = obs[j];
       if (o.id < 0 || o.id >= P) continue;
       Eigen::Vector2d r;
       Eigen::Matrix<double, 2, 6> Jm;
       // The observation's kept columns (local indices) and their Jacobian.
-      int idx[10];
-      Eigen::Matrix<double, 2, 10> Jc;
+      int idx[11];
+      Eigen::Matrix<double, 2, 11> Jc;
       int q = 0;
-      if (!frameRow(k, o, &r, &Jm, idx, &Jc, &q)) {
+      if (!frameRow(k, o, data.shift(k, j), &r, &Jm, idx, &Jc, &q)) {
         out.message = fmt::format("bound: track {} cannot be projected at frame {}", data.pointName(o.id), data.frameName(k));
         return out;
       }
       for (int a = 0; a < q; ++a) idx[a] = local(idx[a]);
       Hmm += Jm.transpose() * Jm;
-      // At most 6 x 10 and 10 x 10: fixed storage, no heap allocation per observation.
-      const Eigen::Matrix<double, 6, Eigen::Dynamic, 0, 6, 10> JmtJc = Jm.transpose() * Jc.leftCols(q);
-      const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, 10, 10> JctJc = Jc.leftCols(q).transpose() * Jc.leftCols(q);
+      // At most 6 x 11 and 11 x 11: fixed storage, no heap allocation per observation.
+      const Eigen::Matrix<double, 6, Eigen::Dynamic, 0, 6, 11> JmtJc = Jm.transpose() * Jc.leftCols(q);
+      const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, 11, 11> JctJc = Jc.leftCols(q).transpose() * Jc.leftCols(q);
       for (int a = 0; a < q; ++a) {
         Hmc.col(idx[a]) += JmtJc.col(a);
         for (int b = 0; b < q; ++b) Hcc(idx[a], idx[b]) += JctJc(a, b);
@@ -393,6 +427,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       if (i >= 0) glob.push_back(i);
     for (int i : iC)
       if (i >= 0) glob.push_back(i);
+    if (iR >= 0) glob.push_back(iR);
     const int q = static_cast<int>(glob.size());
     Eigen::MatrixXd A(q, n);
     for (int a = 0; a < q; ++a) A.row(a) = out.cov.row(glob[a]);
@@ -400,13 +435,14 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     // The plane's jackknife over its tracks (below): per track, its information and score on
     // its plane's N components and its reference, with the motions and beta held.
     std::vector<TrackPlaneInfo> tp(static_cast<std::size_t>(P));
-    for (const Observation& o : data.frames[0]) {
+    for (std::size_t j = 0; j < data.frames[0].size(); ++j) {
+      const Observation& o = data.frames[0][j];
       if (o.id < 0 || o.id >= P) continue;
       Eigen::Vector2d r;
-      int idx[7];
-      Eigen::Matrix<double, 2, 7> J;
-      const int nq = referenceRow(o, &r, idx, &J);
-      const Eigen::Matrix<double, 7, 1> v = J.transpose() * r;
+      int idx[8];
+      Eigen::Matrix<double, 2, 8> J;
+      const int nq = referenceRow(o, data.shift(0, j), &r, idx, &J);
+      const Eigen::Matrix<double, 8, 1> v = J.transpose() * r;
       for (int a = 0; a < nq; ++a) g.col(o.id) += A.col(idx[a]) * v[a];
       tp[o.id].add(Eigen::Matrix<double, 2, 3>::Zero(), J.leftCols<2>(), r);  // columns 0-1: the reference
     }
@@ -419,15 +455,16 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       Eigen::MatrixXd Ac(q, c);
       for (int a = 0; a < c; ++a) Ac.col(a) = A.col(b.cols[a]);
       const Eigen::MatrixXd W = Ac * b.ldlt.solve(b.Hmc).transpose();  // q x 6
-      for (const Observation& o : data.frames[k]) {
+      for (std::size_t j = 0; j < data.frames[k].size(); ++j) {
+        const Observation& o = data.frames[k][j];
         if (o.id < 0 || o.id >= P) continue;
         Eigen::Vector2d r;
         Eigen::Matrix<double, 2, 6> Jm;
-        int idx[10];
-        Eigen::Matrix<double, 2, 10> Jc;
+        int idx[11];
+        Eigen::Matrix<double, 2, 11> Jc;
         int nq = 0;
-        if (!frameRow(k, o, &r, &Jm, idx, &Jc, &nq)) continue;  // cannot happen: the first pass projected it
-        const Eigen::Matrix<double, 10, 1> v = Jc.transpose() * r;
+        if (!frameRow(k, o, data.shift(k, j), &r, &Jm, idx, &Jc, &nq)) continue;  // cannot happen: the first pass projected it
+        const Eigen::Matrix<double, 11, 1> v = Jc.transpose() * r;
         for (int a = 0; a < nq; ++a) g.col(o.id) += A.col(idx[a]) * v[a];
         g.col(o.id).noalias() -= W * (Jm.transpose() * r);
         // This observation's columns on its plane's N components and its reference.
@@ -515,7 +552,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       std::vector<int> all(q), no_camera;
       for (int a = 0; a < q; ++a) {
         all[a] = a;
-        if (std::find(iC.begin(), iC.end(), glob[a]) == iC.end()) no_camera.push_back(a);
+        if (std::find(iC.begin(), iC.end(), glob[a]) == iC.end() && glob[a] != iR) no_camera.push_back(a);
       }
       const Eigen::MatrixXd V = g * g.transpose() * (static_cast<double>(tracks) / (tracks - 1));
       widen(V, all);
@@ -548,6 +585,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
             }
         for (int e = 0; e < 4; ++e)
           if (iC[e] == glob[a]) out.clustered_camera[e] = f[a];
+        if (glob[a] == iR) out.clustered_readout = f[a];
       }
     }
     planeJackknife(data, iN, tp, sandwich_N, &out);
@@ -592,6 +630,12 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     out.camera_estimable[c] = out.estimable(0.0, {}, g);
     for (int b = 0; b < 4; ++b)
       if (iC[b] >= 0) out.cov_camera(c, b) = cov(iC[c], iC[b]);
+  }
+  if (iR >= 0) {
+    out.readout_estimable = out.estimable(0.0, {}, Eigen::Vector4d::Zero(), 1.0);
+    out.var_readout = cov(iR, iR);
+    for (int c = 0; c < 4; ++c)
+      if (iC[c] >= 0) out.cov_readout_camera[c] = cov(iR, iC[c]);
   }
   if (opt.motion_covariance) {
     // cov(m_k) = H_kk^-1 + H_kk^-1 H_kc cov_c H_ck H_kk^-1 (the eliminated block's marginal).

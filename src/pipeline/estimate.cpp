@@ -263,17 +263,20 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   // sensor's, before any undistortion).
   Tracks rs_corrected;
   const Tracks* raw = &input;
-  if (o.rolling_shutter_readout != 0.0) {
-    if (!std::isfinite(o.rolling_shutter_readout) || std::abs(o.rolling_shutter_readout) > kMaxRollingShutterReadout)
-      throw std::invalid_argument(fmt::format("rolling shutter readout {} frame intervals: outside -{} to {}",
-                                              o.rolling_shutter_readout, kMaxRollingShutterReadout, kMaxRollingShutterReadout));
-    rs_corrected = correctRollingShutter(input, o.rolling_shutter_readout);
-    raw = &rs_corrected;
-    say(fmt::format("rolling shutter: readout {:g} frame intervals, the tracks moved to a global shutter's positions",
-                    o.rolling_shutter_readout));
+  if (o.rolling_shutter_readout) {
+    const double tau = *o.rolling_shutter_readout;
+    if (!std::isfinite(tau) || std::abs(tau) > kMaxRollingShutterReadout)
+      throw std::invalid_argument(fmt::format("rolling shutter readout {} frame intervals: outside -{} to {}", tau,
+                                              kMaxRollingShutterReadout, kMaxRollingShutterReadout));
+    if (tau != 0.0) {
+      rs_corrected = correctRollingShutter(input, tau);
+      raw = &rs_corrected;
+      say(fmt::format("rolling shutter: readout {:g} frame intervals, the tracks moved to a global shutter's positions", tau));
+    }
   }
   // A known camera: the tracks onto its ideal pinhole, its intrinsics known.
   EstimateOptions known = o;
+  if (o.rolling_shutter_readout) known.refine.estimate_readout = false;  // known: not a parameter
   Tracks undistorted;
   const Tracks* t = raw;
   if (o.camera) {

@@ -48,14 +48,18 @@ std::vector<std::vector<double>> residualsPx(const Problem& p, const PlaneBatchS
   std::vector<std::vector<double>> out(p.data.labels.size());
   const int F = static_cast<int>(p.data.frames.size()) - 1;
   for (int k = 0; k <= F; ++k)
-    for (const Observation& o : p.data.frames[k]) {
+    for (std::size_t j = 0; j < p.data.frames[k].size(); ++j) {
+      const Observation& o = p.data.frames[k][j];
       Eigen::Vector2d r;
       if (k == 0) {
         planeBatchReferenceResidual(st.ref[o.id], st.beta, st.camera, o.uv, 1.0, &r, nullptr, nullptr, nullptr);
+        r += st.readout * p.data.shift(k, j);
       } else if (planeBatchResidual(st.t[k], Eigen::Vector3d::Zero(), st.R[k], st.beta, st.N[p.data.labels[o.id]],
                                     st.ref[o.id], o.uv, 1.0, &r, nullptr, nullptr, nullptr, nullptr,
                                     camera ? &st.camera : nullptr, nullptr) != MeasureStatus::Ok) {
         r = Eigen::Vector2d::Constant(1e3 / s);  // unprojectable: counts as far off
+      } else {
+        r += st.readout * p.data.shift(k, j);  // a rolling shutter's (0 without one)
       }
       out[o.id].push_back(r.x() * s);
       out[o.id].push_back(r.y() * s);
@@ -96,6 +100,8 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     p.start.beta = from ? from->beta : last.beta;
     p.start.N = from ? from->N : last.N;
     p.start.camera = from ? from->camera : Eigen::Vector4d::Zero();
+    p.start.readout = from ? from->readout : 0.0;
+    if (ro.estimate_readout) p.data.readout_shift.resize(F);
     for (int k = 0; k < F; ++k) {
       const TrackFrame& f = online.frames[k];
       p.start.R.push_back(from ? from->R[k] : f.R);
@@ -146,6 +152,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
           continue;
         }
         p.data.frames[k].push_back({i, uv});
+        if (ro.estimate_readout) p.data.readout_shift[k].push_back(rollingShutterShift(tracks, k, tp) / s);
       }
     return p;
   };
@@ -163,6 +170,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   bo.parameter_tolerance = 1e-8;
   bo.compute_covariance = false;
   bo.camera_free = r.camera_free;
+  bo.readout_prior_sd = ro.readout_prior_sd;
   bo.hold_beta = known_focal;  // a known focal length stays known
   {
     const double pp_sd = ro.principal_point_prior_sd * std::max(tracks.image.width, tracks.image.height) / s;
@@ -222,7 +230,9 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   // Stage 1: the camera held (the principal point at the tracks', no distortion): the filter's
   // start is close to this problem's optimum.
   const std::array<bool, 4> wanted = r.camera_free;
+  const bool wanted_readout = ro.estimate_readout;
   bo.camera_free = {false, false, false, false};
+  bo.readout_free = false;
   PlaneBatchResult res;
   if (!solve(p, sigma0, &res)) {
     r.message = "the refinement did not converge: " + res.message;
@@ -232,16 +242,19 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   std::vector<std::string> why;
   const double fmax = std::max(tracks.image.width, tracks.image.height);
   r.camera_free = wanted;
+  r.readout_free = wanted_readout;
   // The final residuals' spread, and their correlation along tracks, scale the bound; the bound
-  // treats the camera components in `bound_camera` as parameters (with their priors).
+  // treats the camera components in `bound_camera` (and the readout with `bound_readout`) as
+  // parameters (with their priors).
   std::vector<std::vector<double>> per;
   double ss = 0, sigma_final = 0;
-  auto spreadAndBound = [&](const PlaneBatchState& st, const std::array<bool, 4>& bound_camera) {
+  auto spreadAndBound = [&](const PlaneBatchState& st, const std::array<bool, 4>& bound_camera, bool bound_readout) {
     per = residualsPx(p, st, s, true);
     const std::vector<double> all = pooled(per);
     ss = 0;
     for (double x : all) ss += x * x;
-    const int n_cam = static_cast<int>(std::count(bound_camera.begin(), bound_camera.end(), true));  // the bound's parameters
+    const int n_cam = static_cast<int>(std::count(bound_camera.begin(), bound_camera.end(), true)) +
+                      (bound_readout ? 1 : 0);  // the bound's parameters
     const int n_params = 6 * (F - 1) + 1 + (3 * m - 1) + 2 * static_cast<int>(p.data.point_ids.size()) + n_cam;
     const int n_res = static_cast<int>(all.size());
     r.final_rms_px = all.empty() ? 0.0 : std::sqrt(ss / all.size());
@@ -256,6 +269,8 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     PlaneBatchBoundOptions bopt;
     bopt.camera_free = bound_camera;
     bopt.camera_prior_sd = bo.camera_prior_sd;
+    bopt.readout_free = bound_readout;
+    bopt.readout_prior_sd = bo.readout_prior_sd;
     bopt.motion_covariance = true;
     bopt.skip_undetermined_frames = true;
     bopt.hold_beta = known_focal;
@@ -296,6 +311,13 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       r.camera_free[2] = r.camera_free[3] = false;
       held = true;
     }
+    if (r.readout_free && !(std::abs(st.readout) <= kMaxRollingShutterReadout)) {
+      why.push_back(fmt::format("rolling shutter readout not determined: the data pull it to {:.2f} frame intervals, beyond "
+                                "{:g}; held at 0 (a global shutter)",
+                                st.readout, kMaxRollingShutterReadout));
+      r.readout_free = false;
+      held = true;
+    }
     return held;
   };
   // The camera's held components back at the nominal camera (principal point at the tracks',
@@ -303,6 +325,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   auto resetHeld = [&](PlaneBatchState* st) {
     for (int c = 0; c < 4; ++c)
       if (!r.camera_free[c]) st->camera[c] = 0.0;
+    if (!r.readout_free) st->readout = 0.0;
   };
   // A principal point the data do not determine is held before it is released (issue 13 item
   // 4): released, it wanders in a flat valley (box.mp4's overlapping windows: 288-365 px in x
@@ -325,12 +348,14 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   if (ro.hold_undetermined_principal_point && wanted[0]) {
     PlaneBatchResult rd;
     bool have_rd = false;
-    if (wanted[2] || wanted[3]) {
+    if (wanted[2] || wanted[3] || wanted_readout) {
       bo.camera_free = {false, false, wanted[2], wanted[3]};
+      bo.readout_free = wanted_readout;
       p.start = res.state;
-      have_rd = solve(p, sigma0, &rd) && !distortionFolds(rd.state);
+      have_rd = solve(p, sigma0, &rd) && !distortionFolds(rd.state) &&
+                std::abs(rd.state.readout) <= kMaxRollingShutterReadout;
     }
-    const PlaneBatchBound b0 = spreadAndBound(have_rd ? rd.state : res.state, wanted);
+    const PlaneBatchBound b0 = spreadAndBound(have_rd ? rd.state : res.state, wanted, wanted_readout);
     double sx = 0, sy = 0;
     if (b0.ok && ppUndetermined(b0, &sx, &sy)) {
       r.camera_free[0] = r.camera_free[1] = false;
@@ -347,14 +372,17 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     }
   }
   for (int round = 0; round < 2 && !camera_solved &&
-                      std::any_of(r.camera_free.begin(), r.camera_free.end(), [](bool b) { return b; });
+                      (r.readout_free || std::any_of(r.camera_free.begin(), r.camera_free.end(), [](bool b) { return b; }));
        ++round) {
     bo.camera_free = r.camera_free;
+    bo.readout_free = r.readout_free;
     p.start = res.state;
+    if (!r.readout_free) p.start.readout = 0.0;  // held implausible: at a global shutter's
     PlaneBatchResult rc;
     if (!solve(p, sigma0, &rc)) {
       why.push_back("the camera's refinement did not converge (" + rc.message + "); held");
       r.camera_free = {false, false, false, false};
+      r.readout_free = false;
       break;
     }
     r.iterations += rc.iterations;
@@ -365,6 +393,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     }
   }
   bo.camera_free = r.camera_free;
+  bo.readout_free = r.readout_free;
   // Stage 3: tracks off their plane under the final model become outliers; solve again without
   // them, with the noise and the loss's scale from the remaining residuals.
   {
@@ -389,6 +418,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       Problem q = build(lab, &res.state, &p.data.point_ids);
       PlaneBatchResult res2;
       const std::array<bool, 4> free_before = r.camera_free;
+      const bool readout_before = r.readout_free;
       const std::size_t why_before = why.size();
       bool solved = static_cast<int>(q.data.point_ids.size()) >= 5 && solve(q, sigma1, &res2);
       for (int round = 0; round < 2 && solved && holdImplausible(res2.state); ++round) {
@@ -397,13 +427,16 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
         // solved again from there with the held components at the nominal camera.
         r.iterations += res2.iterations;
         bo.camera_free = r.camera_free;
+        bo.readout_free = r.readout_free;
         q.start = res2.state;
         resetHeld(&q.start);
         solved = solve(q, sigma1, &res2);
       }
       if (!solved) {  // the previous solve stands, with its camera
         r.camera_free = free_before;
+        r.readout_free = readout_before;
         bo.camera_free = r.camera_free;
+        bo.readout_free = r.readout_free;
         why.resize(why_before);
       }
       if (solved) {
@@ -423,8 +456,9 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   if (pp_held_undetermined) bound_camera[0] = bound_camera[1] = true;  // its prior in the bound
   // With the principal point held after the distortion's solve and no track relabelled, the
   // state and the bound's parameters are those of the decision's bound: it is the final one.
-  const bool reuse = b_held && r.relabelled == 0 && bound_camera == wanted;
-  PlaneBatchBound b = reuse ? std::move(*b_held) : spreadAndBound(res.state, bound_camera);
+  const bool bound_readout = r.readout_free;
+  const bool reuse = b_held && r.relabelled == 0 && bound_camera == wanted && bound_readout == wanted_readout;
+  PlaneBatchBound b = reuse ? std::move(*b_held) : spreadAndBound(res.state, bound_camera, bound_readout);
   if (ro.hold_undetermined_principal_point && b.ok && r.camera_free[0]) {
     // Judged determined before the release, but not at the final optimum (the outliers gone, the
     // camera released): held there as well, and the rest solved again from the nominal centre.
@@ -443,7 +477,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
         why.push_back(fmt::format("principal point not determined (sd {:.1f}, {:.1f} px at ({:.0f}, {:.0f}) px); held at "
                                   "({:.1f}, {:.1f}) with its prior sd {:.0f} px in the bound",
                                   sx, sy, at.x(), at.y(), cx, cy, s * bo.camera_prior_sd[0]));
-        b = spreadAndBound(res.state, bound_camera);
+        b = spreadAndBound(res.state, bound_camera, bound_readout);
       } else {
         r.camera_free = free_before;
         bo.camera_free = r.camera_free;
@@ -509,13 +543,20 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     const PlaneBatchResult rot = solvePlaneBatch(p.data, p.start, ro_opt);
     double ss_rot = 0;
     for (int k = 0; k < F; ++k)
-      for (const Observation& o : p.data.frames[k]) {
+      for (std::size_t j = 0; j < p.data.frames[k].size(); ++j) {
+        const Observation& o = p.data.frames[k][j];
         Eigen::Vector2d rr;
+        bool projected = true;
         if (k == 0)
           planeBatchReferenceResidual(rot.state.ref[o.id], rot.state.beta, rot.state.camera, o.uv, 1.0, &rr, nullptr, nullptr,
                                       nullptr);
-        else if (planeBatchRotationResidual(Eigen::Vector3d::Zero(), rot.state.R[k], rot.state.beta, rot.state.ref[o.id], o.uv,
-                                            1.0, &rot.state.camera, &rr, nullptr, nullptr, nullptr, nullptr) != MeasureStatus::Ok)
+        else
+          projected = planeBatchRotationResidual(Eigen::Vector3d::Zero(), rot.state.R[k], rot.state.beta, rot.state.ref[o.id],
+                                                 o.uv, 1.0, &rot.state.camera, &rr, nullptr, nullptr, nullptr,
+                                                 nullptr) == MeasureStatus::Ok;
+        if (projected)
+          rr += rot.state.readout * p.data.shift(k, j);  // a rolling shutter's (0 without one)
+        else
           rr = Eigen::Vector2d::Constant(1e3 / s);
         ss_rot += rr.squaredNorm() * s * s;
       }
@@ -737,6 +778,14 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     if (r.camera_free[c] && !r.camera_determined[c])
       why.push_back(fmt::format("k{} not determined (sd {:.3f}, limit {})", c - 1, std::sqrt(std::max(0.0, b.cov_camera(c, c))),
                                 kDeterminedDistortionSd));
+  if (r.readout_free) {
+    r.readout_sd = b.readout_index >= 0 ? std::sqrt(std::max(0.0, b.var_readout)) : INFINITY;
+    r.readout_determined = b.readout_estimable && r.readout_sd <= kDeterminedReadoutSd;
+    if (!r.readout_determined)
+      why.push_back(fmt::format("rolling shutter readout not determined (sd {:.2f} frame intervals, limit {})", r.readout_sd,
+                                kDeterminedReadoutSd));
+  }
+  r.readout = st.readout;
   for (std::size_t i = 0; i < why.size(); ++i) r.why += (i ? "; " : "") + why[i];
   r.camera = st.camera;
   r.cov_camera = b.cov_camera;
@@ -798,6 +847,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
                           s * std::sqrt(std::max(0.0, r.cov_camera(1, 1))), r.camera[2], std::sqrt(std::max(0.0, r.cov_camera(2, 2))),
                           r.camera[3], std::sqrt(std::max(0.0, r.cov_camera(3, 3))), res.message, r.iterations, r.tracks,
                           r.observations, r.relabelled, r.sigma_px);
+  if (r.readout_free) r.message += fmt::format(", rolling shutter readout {:.3f} +- {:.3f} frame intervals", r.readout, r.readout_sd);
   r.message += fmt::format(", correlation inflation {:.1f}", r.correlation_inflation);
   r.message += fmt::format(", sd widened by the track-clustered check: focal x{:.2f}, planes x{:.2f}", r.clustered_focal_factor,
                            fmt::join(r.clustered_plane_factor, "/x"));

@@ -303,7 +303,14 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                      {"k_sd", {sd(2), sd(3)}},
                      {"distortion_estimated", rf.camera_free[2]},
                      {"distortion_determined", rf.camera_determined[2] && rf.camera_determined[3]},
-                     {"k_determined", {rf.camera_determined[2], rf.camera_determined[3]}}};
+                     {"k_determined", {rf.camera_determined[2], rf.camera_determined[3]}},
+                     // A rolling shutter's readout, frame intervals (RefineOptions::estimate_readout):
+                     // null when not estimated (a readout given, or held).
+                     {"readout", rf.readout_free ? nlohmann::json(rf.readout) : nlohmann::json(nullptr)},
+                     {"readout_sd", rf.readout_free && std::isfinite(rf.readout_sd) ? nlohmann::json(rf.readout_sd)
+                                                                                      : nlohmann::json(nullptr)},
+                     {"readout_estimated", rf.readout_free},
+                     {"readout_determined", rf.readout_determined}};
       j["principal_point_px"] = {rf.principal_point_px.x(), rf.principal_point_px.y()};
       j["radial_distortion"] = {rf.camera[2], rf.camera[3]};
       // Frames whose pose the observations do not determine, as input frame numbers (the

@@ -40,23 +40,24 @@ int trimLeadingEmptyFrames(Tracks* t) {
   return static_cast<int>(n);
 }
 
+Eigen::Vector2d rollingShutterShift(const Tracks& t, int k, const TrackPoint& p) {
+  if (t.image.height <= 0) return Eigen::Vector2d::Zero();
+  const TrackPoint* a = t.find(k - 1, p.id);
+  const TrackPoint* b = t.find(k + 1, p.id);
+  const TrackPoint& lo = a ? *a : p;
+  const TrackPoint& hi = b ? *b : p;
+  const int dk = t.frameNumber(b ? k + 1 : k) - t.frameNumber(a ? k - 1 : k);
+  if (dk <= 0) return Eigen::Vector2d::Zero();  // seen in this frame only: no velocity
+  const double h = t.image.height, mid = (h - 1.0) / 2.0;
+  return (p.px.y() - mid) / h * (hi.px - lo.px) / dk;
+}
+
 Tracks correctRollingShutter(const Tracks& t, double readout) {
   Tracks out = t;
   if (readout == 0.0 || t.image.height <= 0) return out;
-  const double h = t.image.height, mid = (h - 1.0) / 2.0;
-  for (int k = 0; k < t.numFrames(); ++k) {
-    for (std::size_t i = 0; i < t.frames[k].size(); ++i) {
-      const TrackPoint& p = t.frames[k][i];
-      const TrackPoint* a = t.find(k - 1, p.id);
-      const TrackPoint* b = t.find(k + 1, p.id);
-      const TrackPoint& lo = a ? *a : p;
-      const TrackPoint& hi = b ? *b : p;
-      const int dk = t.frameNumber(b ? k + 1 : k) - t.frameNumber(a ? k - 1 : k);
-      if (dk <= 0) continue;  // seen in this frame only: no velocity
-      const Eigen::Vector2d v = (hi.px - lo.px) / dk;
-      out.frames[k][i].px = p.px - readout * (p.px.y() - mid) / h * v;
-    }
-  }
+  for (int k = 0; k < t.numFrames(); ++k)
+    for (std::size_t i = 0; i < t.frames[k].size(); ++i)
+      out.frames[k][i].px -= readout * rollingShutterShift(t, k, t.frames[k][i]);
   return out;
 }
 

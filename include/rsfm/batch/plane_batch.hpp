@@ -42,6 +42,11 @@ struct PlaneBatchOptions {
   /// point, no distortion): sd in the components' units (normalized for dc, none for k); 0: none.
   std::array<double, 4> camera_prior_sd{0, 0, 0, 0};
   bool hold_beta = false;  ///< beta held at its start value (a known focal length)
+  /// A rolling shutter's readout (PlaneBatchState::readout, PlaneBatchData::readout_shift) is a
+  /// parameter, with a Gaussian prior about zero of sd `readout_prior_sd` frame intervals (0:
+  /// none). Needs readout_shift.
+  bool readout_free = false;
+  double readout_prior_sd = 0.0;
   /// Eliminate the per-frame motions first (Ceres' Schur ordering; DENSE_SCHUR on what remains:
   /// references, beta, planes, camera). Fast when there are many frames and a few hundred points
   /// (the refinement); false: Ceres' own SPARSE_SCHUR ordering (the experiments).
@@ -80,6 +85,16 @@ struct PlaneBatchData {
   /// each point (empty: their indices here). A caller that left frames out (a still stretch) or
   /// kept only some tracks passes them, so that a message names what the user gave.
   std::vector<int> frame_numbers, point_ids;
+  /// A rolling shutter (docs/estimate.md section 6): per frame, parallel to frames[k], what the
+  /// observation moves per frame interval of readout ((y - mid) / height times its track's
+  /// velocity, normalized coordinates; rollingShutterShift). Every prediction is moved by
+  /// PlaneBatchState::readout times it. Empty: a global shutter (no readout parameter).
+  std::vector<std::vector<Eigen::Vector2d>> readout_shift;
+  bool hasReadout() const { return !readout_shift.empty(); }
+  /// The shift of frames[k][j] (zero without readout_shift).
+  Eigen::Vector2d shift(int k, std::size_t j) const {
+    return readout_shift.empty() ? Eigen::Vector2d::Zero() : readout_shift[k][j];
+  }
   int frameName(int k) const { return k >= 0 && k < static_cast<int>(frame_numbers.size()) ? frame_numbers[k] : k; }
   int pointName(int i) const { return i >= 0 && i < static_cast<int>(point_ids.size()) ? point_ids[i] : i; }
 };
@@ -92,6 +107,8 @@ struct PlaneBatchState {
   std::vector<Eigen::Vector3d> N;   ///< per plane
   std::vector<Eigen::Vector2d> ref;  ///< per point: reference-frame position (normalized, undistorted)
   Eigen::Vector4d camera = Eigen::Vector4d::Zero();  ///< (dc_x, dc_y, k1, k2), models/radial_camera.hpp
+  /// A rolling shutter's readout, frame intervals (first row to last; PlaneBatchData::readout_shift).
+  double readout = 0.0;
 };
 
 struct PlaneBatchResult {
@@ -150,6 +167,10 @@ struct PlaneBatchBoundOptions {
   /// enters the residuals whenever it is non-zero or a component is free).
   std::array<bool, 4> camera_free{false, false, false, false};
   std::array<double, 4> camera_prior_sd{0, 0, 0, 0};  ///< as PlaneBatchOptions'
+  /// The readout is a parameter of the bound (a camera parameter: widened with the camera's
+  /// block, not by the spatial clusters), with PlaneBatchOptions' prior. Needs readout_shift.
+  bool readout_free = false;
+  double readout_prior_sd = 0.0;
   bool motion_covariance = false;  ///< also each frame's 6x6 motion covariance (back-substitution)
   /// Frames whose motion the observations do not determine (fewer than 4, or a singular block)
   /// are left out and listed in skipped_frames; false: such a frame makes the bound fail.
@@ -191,6 +212,9 @@ struct PlaneBatchBound {
   std::vector<Eigen::Matrix3d> cov_N_pair;
   std::array<bool, 4> camera_estimable{false, false, false, false};
   Eigen::Matrix4d cov_camera = Eigen::Matrix4d::Zero();  ///< free components only (others zero)
+  bool readout_estimable = false;  ///< with readout_free
+  double var_readout = 0.0;        ///< frame intervals^2
+  Eigen::Vector4d cov_readout_camera = Eigen::Vector4d::Zero();  ///< cov(readout, camera), free components
   std::vector<Eigen::Matrix<double, 6, 6>> cov_motion;   ///< frames 0..F (frame 0 and skipped frames zero)
   std::vector<int> skipped_frames;
   /// With track_clustered: the factor sqrt(max(1, V_ii / cov_ii)) applied to beta's sd, the
@@ -199,6 +223,7 @@ struct PlaneBatchBound {
   double clustered_beta_ratio = 0.0;  ///< V / cov for beta before widening (0: not computed)
   std::vector<double> clustered_N;
   std::array<double, 4> clustered_camera{1, 1, 1, 1};
+  double clustered_readout = 1.0;
   /// With track_clustered, per plane: the further sd factor on its N components from the
   /// delete-one-track jackknife (plane_batch_bound.cpp, planeJackknife), which sees the leverage
   /// the sandwich misses (a track that alone decides a direction: the fit follows it, so its
@@ -210,14 +235,16 @@ struct PlaneBatchBound {
   /// plane's normal must not be called determined.
   std::vector<double> jackknife_N, jackknife_ratio_N;
   /// Whether a functional of (beta, N..., camera) is estimable: `g_beta`, per plane `g_N` (3) and
-  /// `g_camera` (4) its gradient.
-  bool estimable(double g_beta, const std::vector<Eigen::Vector3d>& g_N, const Eigen::Vector4d& g_camera) const;
+  /// `g_camera` (4) and `g_readout` its gradient.
+  bool estimable(double g_beta, const std::vector<Eigen::Vector3d>& g_N, const Eigen::Vector4d& g_camera,
+                 double g_readout = 0.0) const;
   // Internal: the kept parameters' pseudo-inverse covariance, scaling and null space.
   Eigen::MatrixXd cov, null_scaled;
   Eigen::VectorXd scale;
   int beta_index = -1;               ///< -1: beta held
   std::vector<int> N_index;          ///< 3 per plane, -1 for the gauge component
   std::array<int, 4> camera_index{-1, -1, -1, -1};
+  int readout_index = -1;            ///< -1: not a parameter
 };
 PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchState& at,
                                 const PlaneBatchBoundOptions& options = {});

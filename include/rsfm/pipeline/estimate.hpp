@@ -27,10 +27,6 @@
 
 namespace rsfm {
 
-/// The largest rolling-shutter readout EstimateOptions takes (frame intervals): a sensor reads its
-/// rows within about one frame interval (the first-order correction's best fit can exceed it a
-/// little: box.mp4's windows fit best at 1-1.5, docs/regimes.md).
-constexpr double kMaxRollingShutterReadout = 2.0;
 
 struct EstimateOptions {
   /// The recursive filter: model (point | plane | planes), known or initial focal length, tracking
@@ -49,13 +45,13 @@ struct EstimateOptions {
   /// anything else, its focal length is known (filter.focal_px must then be 0) and its principal
   /// point and distortion are held in the refinement.
   std::optional<vision::CameraCalibration> camera;
-  /// A rolling shutter's readout time, in frame intervals (the time from the first row to the
-  /// last; docs/estimate.md section 6, "A rolling shutter"): the tracks are moved to a global
+  /// A rolling shutter's known readout time, in frame intervals (the time from the first row to
+  /// the last; docs/estimate.md section 6, "A rolling shutter"): the tracks are moved to a global
   /// shutter's positions with their own velocities (correctRollingShutter, rsfm/track/tracks.hpp)
-  /// before anything else. 0 (the default): a global shutter, the tracks as they are. Known from
-  /// the camera or measured (bench/rolling_shutter_scan.sh), not estimated; at most
-  /// kMaxRollingShutterReadout either way.
-  double rolling_shutter_readout = 0.0;
+  /// before anything else, and the refinement does not estimate it (0: a known global shutter).
+  /// At most kMaxRollingShutterReadout either way. Unset (the default): the refinement estimates
+  /// it (RefineOptions::estimate_readout).
+  std::optional<double> rolling_shutter_readout;
   /// A known principal point (px): the tracks' image's is replaced by it and held.
   std::optional<Eigen::Vector2d> principal_point;
   /// The still start (issue 14 item 1, vision/still_start.hpp, docs/estimate.md section 0):

@@ -6,7 +6,7 @@
 // every plane N (plane 0's N_Z held: the filter's scale gauge), every track's reference-frame
 // position (tracks born later anchored by their own observations), and the image-side camera
 // (models/radial_camera.hpp): the principal point and OpenCV's k1, k2, each estimated unless
-// known. Residuals in pixels (through s), under a Huber loss whose scale is `loss_sigmas` times
+// known, and a rolling shutter's readout (docs/estimate.md section 6). Residuals in pixels (through s), under a Huber loss whose scale is `loss_sigmas` times
 // the residuals' robust sd (1.4826 MAD) at the start. Stages: (1) the camera held (principal point
 // at the tracks', no distortion) from the filter's estimate; (2) the camera's free components
 // released from there; an implausible camera (the principal point beyond `max_principal_offset`, a
@@ -36,6 +36,13 @@
 
 namespace rsfm {
 
+/// The largest rolling-shutter readout taken, either way (frame intervals): a sensor reads its
+/// rows within about one frame interval (the first-order correction's best fit can exceed it a
+/// little: box.mp4's windows fit best at 1-1.5, docs/regimes.md). A known readout beyond it is
+/// refused (EstimateOptions::rolling_shutter_readout); an estimate beyond it is the data pulling
+/// the camera where no camera is, and the readout is held at 0.
+inline constexpr double kMaxRollingShutterReadout = 2.0;
+
 struct RefineOptions {
   bool enabled = true;                 ///< false: no refinement (--refine none)
   bool estimate_principal_point = true;  ///< false: held at the tracks' principal point (known)
@@ -60,6 +67,15 @@ struct RefineOptions {
   /// (a principal point the data cannot place makes the focal length less certain, not free).
   double principal_point_prior_sd = 0.03;
   double distortion_prior_sd = 0.25;
+  /// A rolling shutter's readout (frame intervals, first row to last; docs/estimate.md section 6)
+  /// as a camera parameter: every prediction moves by readout x (y - mid) / height x its track's
+  /// velocity (rollingShutterShift), released with the camera in stage 2, held at 0 when
+  /// implausible (beyond kMaxRollingShutterReadout either way). false: a global shutter (or a known readout,
+  /// the tracks already corrected: EstimateOptions::rolling_shutter_readout).
+  bool estimate_readout = true;
+  /// Its prior about 0 (a global shutter), sd in frame intervals: weak against a moving scene's
+  /// ~10^4 observations (sd ~0.05 on box.mp4), it bounds the readout where nothing moves.
+  double readout_prior_sd = 1.0;
   /// A principal point the data do not determine (its sd above determinacy.hpp's limit after the
   /// outlier stage) is held at the nominal centre and the rest solved again, its prior sd kept in
   /// the bound (docs/estimate.md section 4): the estimate then does not depend on where the
@@ -107,6 +123,10 @@ struct RefineResult {
   std::array<bool, 4> camera_free{false, false, false, false};
   std::array<bool, 4> camera_determined{false, false, false, false};
   Eigen::Vector2d principal_point_px = Eigen::Vector2d::Zero();  ///< nominal + s dc
+  /// A rolling shutter's readout (frame intervals; RefineOptions::estimate_readout): estimated
+  /// (readout_free), its sd from the bound, and whether that is within kDeterminedReadoutSd.
+  bool readout_free = false, readout_determined = false;
+  double readout = 0.0, readout_sd = 0.0;
   double sigma_px = 0.0;      ///< the inlier residuals' spread sqrt(sum r^2 / (m - n))
   /// Variance inflation for the residuals' correlation along each track (1 + 2 sum of the pooled
   /// autocorrelation up to its first non-positive lag): tracker errors drift smoothly, so a

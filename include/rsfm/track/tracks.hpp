@@ -88,4 +88,10 @@ int trimLeadingEmptyFrames(Tracks* t);
 /// any undistortion: the row is the sensor's). Frame numbers, ids and the image are unchanged.
 Tracks correctRollingShutter(const Tracks& t, double readout);
 
+/// What a rolling shutter adds to the observation `p` of frame k per frame interval of readout:
+/// (y - (height - 1) / 2) / height v, pixels, v its track's velocity as correctRollingShutter's
+/// (zero for a track seen in one frame or an image without a height). The refinement's readout
+/// parameter moves each prediction by readout times this (docs/estimate.md section 6).
+Eigen::Vector2d rollingShutterShift(const Tracks& t, int k, const TrackPoint& p);
+
 }  // namespace rsfm
