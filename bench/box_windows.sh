@@ -4,8 +4,8 @@
 # (docs/regimes.md, "box.mp4 across the whole video"). The regime bench scores ten 150-frame
 # windows starting at 0-18; this covers the rest. Prints a Markdown table, one row per window:
 # exit code, planes, which are determined, the determined angles between planes with their sds, the focal length
-# and its sd (or "not determined" with the supported interval), and the start of
-# not_determined_why. Usage: bash bench/box_windows.sh BUILD_DIR [LENGTH [STEP [FIRST]]]
+# and its sd (or "not determined" with the supported interval), the rolling shutter's readout
+# estimated and its sd (frame intervals), and the start of not_determined_why. Usage: bash bench/box_windows.sh BUILD_DIR [LENGTH [STEP [FIRST]]]
 # (defaults 150 frames, every 25 frames from 20). Needs opencv-doc (box.mp4.gz) or the regime
 # bench's cached copy. Writes its runs under a temporary directory.
 set -euo pipefail
@@ -26,7 +26,7 @@ cat >"$tmp/row.py" <<'PY'
 import json, sys
 w, rc, path = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 if rc != 0:
-    print("| %s | %d | | | | | |" % (w, rc))
+    print("| %s | %d | | | | | | |" % (w, rc))
     sys.exit(0)
 s = json.load(open(path))
 det = s.get("plane_determined") or []
@@ -39,10 +39,12 @@ else:
     f = "not determined (%s to %s px)" % ("0" if lo is None else "%.0f" % lo, "inf" if hi is None else "%.0f" % hi)
 why = (s.get("not_determined_why") or "").replace("|", "/")
 why = "; ".join(p for p in why.split("; ") if not p.startswith(("principal point not determined", "held at")))[:110]
-print("| %s | 0 | %d (tracks %s) | %d | %s | %s | %s |" % (w, len(det), s["plane_tracks"], sum(map(bool, det)), ", ".join(ang), f, why))
+cam = s.get("camera") or {}
+ro = "%.2f +- %.2f" % (cam["readout"], cam["readout_sd"]) if cam.get("readout") is not None and cam.get("readout_sd") is not None else "-"
+print("| %s | 0 | %d (tracks %s) | %d | %s | %s | %s | %s |" % (w, len(det), s["plane_tracks"], sum(map(bool, det)), ", ".join(ang), f, ro, why))
 PY
-echo "| window | exit | planes | determined | angles deg | focal px | not determined (principal point omitted) |"
-echo "|---|---|---|---|---|---|---|"
+echo "| window | exit | planes | determined | angles deg | focal px | rolling shutter readout | not determined (principal point omitted) |"
+echo "|---|---|---|---|---|---|---|---|"
 for ((s = first; s + len <= frames; s += step)); do
   e=$((s + len - 1))
   rc=0
