@@ -251,6 +251,14 @@ std::string finishEstimateOptions(EstimateCli* e) {
   }
   if (e->patches && e->est.rolling_shutter_readout.value_or(0.0) != 0.0)
     return "--rolling-shutter-readout applies to the point and plane models (--model patches does not correct its patches)";
+  if (e->patches && e->est.camera && e->est.camera->rolling_shutter_readout.value_or(0.0) != 0.0)
+    return e->camera_file + ": its rolling_shutter_readout applies to the point and plane models (--model patches does not "
+                            "correct its patches)";
+  try {
+    knownReadout(e->est);  // given twice and different, or out of range: said here, before anything runs
+  } catch (const std::invalid_argument& ex) {
+    return ex.what();
+  }
   if (e->refine == "final") e->est.refine.enabled = true;
   else if (e->refine == "none") e->est.refine.enabled = false;
   else return "--refine must be final or none, got '" + e->refine + "'";
@@ -272,6 +280,22 @@ std::string finishEstimateOptions(EstimateCli* e) {
 namespace {
 
 std::string cameraYamlOf(const EstimateResult& r, const EstimateOptions& o, const ImageInfo& image) {
+  // The rolling shutter's readout: a node `--camera` reads as known when it is (given, or
+  // determined by the refinement); an estimate not determined only as a comment.
+  auto readoutLines = [&](std::vector<std::string>* extra) {
+    const RefineResult& f = r.refined;
+    if (const std::optional<double> tau = knownReadout(o)) {
+      extra->push_back(fmt::format("rolling_shutter_readout: {:.17g}", *tau));
+      extra->push_back("rolling_shutter_readout_given: 1");
+    } else if (f.ok && f.readout_free && f.readout_determined) {
+      extra->push_back(fmt::format("rolling_shutter_readout: {:.6g}", f.readout));
+      extra->push_back(fmt::format("rolling_shutter_readout_sd: {:.6g}", f.readout_sd));
+    } else if (f.ok && f.readout_free) {
+      extra->push_back(fmt::format("# rolling shutter readout {:.3f} +- {:.3f} frame intervals: not determined (not a node, "
+                                   "so --camera does not take it as known)",
+                                   f.readout, f.readout_sd));
+    }
+  };
   if (o.camera) {
     const vision::CameraCalibration& c = *o.camera;
     std::vector<std::string> extra{fmt::format("source: \"{} (given)\"", c.source)};
@@ -280,6 +304,7 @@ std::string cameraYamlOf(const EstimateResult& r, const EstimateOptions& o, cons
       for (double d : c.distortion) all += fmt::format("{}{:.17g}", all.empty() ? "" : ", ", d);
       extra.push_back("# the given distortion (OpenCV's order k1, k2, p1, p2, k3, ...): " + all);
     }
+    readoutLines(&extra);
     return io::cameraYaml(c.width, c.height, c.focal(), c.cx, c.cy, c.distortion.size() > 0 ? c.distortion[0] : 0.0,
                               c.distortion.size() > 1 ? c.distortion[1] : 0.0, extra);
   }
@@ -298,6 +323,7 @@ std::string cameraYamlOf(const EstimateResult& r, const EstimateOptions& o, cons
       fmt::format("distortion_estimated: {}", f.camera_free[2] ? 1 : 0),
       fmt::format("distortion_determined: {}", f.camera_determined[2] && f.camera_determined[3] ? 1 : 0),
       fmt::format("distortion_sd: [ {:.6g}, {:.6g} ]", sd(2), sd(3))};
+  readoutLines(&extra);
   return io::cameraYaml(image.width, image.height, s / beta, f.principal_point_px.x(), f.principal_point_px.y(),
                             f.camera[2], f.camera[3], extra);
 }
@@ -436,8 +462,8 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
   rep.extra["measurement_noise"] = {{"sigma_px", r.filter_used.sigma_px},
                                     {"floor_px", e.est.filter.sigma_px},
                                     {"from_tracking_noise", r.filter_used.sigma_px > e.est.filter.sigma_px}};
-  rep.extra["rolling_shutter_readout"] =
-      e.est.rolling_shutter_readout ? nlohmann::json(*e.est.rolling_shutter_readout) : nlohmann::json(nullptr);
+  const std::optional<double> readout = knownReadout(e.est);  // checked by finishEstimateOptions
+  rep.extra["rolling_shutter_readout"] = readout ? nlohmann::json(*readout) : nlohmann::json(nullptr);
   rep.extra["stage_seconds"] = {{"plane_finding", r.seconds.plane_finding}, {"start", r.seconds.start},
                                 {"filter", r.seconds.filter}, {"refinement", r.seconds.refinement}};
 }

@@ -187,6 +187,11 @@ check "estimate: principal point outside the image" 2 "$E" -- estimate --tracks 
 check "estimate: principal point not a pair" 2 "$E" -- estimate --tracks "$CT" --out "$E" --principal-point 300
 check "estimate: rolling shutter readout out of range" 2 "$E" -- estimate --tracks "$CT" --out "$E" --rolling-shutter-readout 3
 check "estimate: rolling shutter readout with the patch model" 2 "$E" -- estimate --tracks "$CT" --out "$E" --model patches --rolling-shutter-readout 1
+{ cat "$TMP/good.yaml"; echo "rolling_shutter_readout: 0.9"; } >"$TMP/rs.yaml"
+check "estimate: readout given and in the camera file, different" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/rs.yaml" --rolling-shutter-readout 0.5
+check "estimate: camera file's readout with the patch model" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/rs.yaml" --model patches
+{ cat "$TMP/good.yaml"; echo "rolling_shutter_readout: 7"; } >"$TMP/rs7.yaml"
+check "estimate: camera file's readout out of range" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/rs7.yaml"
 check "render: suite not JSON" 2 "$R" -- render regime a --out "$R" --suite "$TMP/suite4.json"
 if "$RSFM" render box --out "$R" --frames 4 --width 160 --height 120 --focal-px 130 --quiet 2>"$TMP/err.txt" &&
    [ -s "$R/video.mp4" ] && [ "$(grep -vc '^#' "$R/truth/trajectory.tum")" -eq 4 ] &&

@@ -38,6 +38,28 @@ TEST(CameraFile, ReadsWhatCalibrationToolsAndRsfmWrite) {
   EXPECT_EQ(c.width, 640);
   EXPECT_DOUBLE_EQ(c.focal(), 612.5);
   EXPECT_DOUBLE_EQ(c.distortion[0], -0.1);
+  EXPECT_FALSE(c.rolling_shutter_readout);  // a calibration says nothing of its shutter
+  // rsfm's camera.yaml with a determined readout (and one not determined, as a comment only).
+  const auto rs = readCameraText(rsfm::io::cameraYaml(640, 480, 612.5, 319.5, 239.5, -0.1, 0.02,
+                                                      {"rolling_shutter_readout: 0.97", "rolling_shutter_readout_sd: 0.08",
+                                                       "# rolling shutter readout 0.4 +- 0.3: not determined"}),
+                                 "camera.yaml");
+  ASSERT_TRUE(rs.rolling_shutter_readout);
+  EXPECT_DOUBLE_EQ(*rs.rolling_shutter_readout, 0.97);
+  const auto comment = readCameraText(
+      rsfm::io::cameraYaml(640, 480, 612.5, 319.5, 239.5, -0.1, 0.02, {"# rolling shutter readout 0.4 +- 0.3: not determined"}),
+      "camera.yaml");
+  EXPECT_FALSE(comment.rolling_shutter_readout);
+  // Beyond 2 frame intervals, or not a number: refused, naming the file.
+  for (const char* bad : {"rolling_shutter_readout: 2.5", "rolling_shutter_readout: abc"}) {
+    try {
+      readCameraText(rsfm::io::cameraYaml(640, 480, 612.5, 319.5, 239.5, -0.1, 0.02, {bad}), "cam.yaml");
+      ADD_FAILURE() << bad << " accepted";
+    } catch (const rsfm::io::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("cam.yaml: "), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("rolling_shutter_readout"), std::string::npos) << e.what();
+    }
+  }
 }
 
 TEST(CameraFile, RefusesWhatOpenCvsParserCannotSurvive) {

@@ -32,6 +32,22 @@ sys.exit(0 if ok else 1)' "$TMP/e/summary.json" || { echo "FAIL summary.json sta
 cmp -s "$TMP/e/trajectory.tum" "$TMP/e2/trajectory.tum" && cmp -s "$TMP/e/planes.csv" "$TMP/e2/planes.csv" ||
   { echo "FAIL rsfm estimate on the run's tracks.csv differs from the run"; exit 1; }
 echo "rsfm estimate on the run's tracks.csv: trajectory.tum and planes.csv identical to the run's"
+# The run's camera.yaml is a camera `--camera` takes: its focal length, principal point and
+# distortion known, and its rolling shutter's readout known when the refinement determined it
+# (docs/estimate.md section 6; a rendered video is a global shutter: a readout near 0).
+"$RSFM" estimate --tracks "$TMP/e/tracks.csv" --camera "$TMP/e/camera.yaml" --out "$TMP/e3" --quiet --no-plots ||
+  { echo "FAIL rsfm estimate --camera with the run's camera.yaml"; exit 1; }
+/usr/bin/python3 -c '
+import json, re, sys
+yaml, s, s0 = open(sys.argv[1]).read(), json.load(open(sys.argv[2])), json.load(open(sys.argv[3]))
+m = re.search(r"^rolling_shutter_readout: (\S+)$", yaml, re.M)
+assert s0["camera"]["readout_estimated"] and s0["camera"]["readout_determined"], s0["camera"]
+assert m is not None and float(m.group(1)) == float("%.6g" % s0["camera"]["readout"]), (m, s0["camera"])
+assert abs(float(m.group(1))) < 3 * s0["camera"]["readout_sd"], "a global shutter read as a rolling one"
+assert s["rolling_shutter_readout"] == float(m.group(1)) and s["camera"]["given"], (s["rolling_shutter_readout"], s["camera"])
+print("camera.yaml round trip: readout %s +- %.3f estimated, given back as known; focal %.1f -> %.1f px" %
+      (m.group(1), s0["camera"]["readout_sd"], s0["focal_px"], s["focal_px"]))' "$TMP/e/camera.yaml" "$TMP/e3/summary.json" "$TMP/e/summary.json" ||
+  { echo "FAIL camera.yaml round trip"; exit 1; }
 # Odd frame sizes: OpenCV's writer used to drop a column and a row (and wrote a damaged stream);
 # the overlay is padded to even sides instead (docs/outputs.md).
 if command -v ffmpeg >/dev/null; then

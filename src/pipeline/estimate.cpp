@@ -244,6 +244,18 @@ std::vector<TrackFilterOptions::LatePlane> findLatePlanes(const Tracks& tracks, 
   return late;  // in label order; the filter places each from its init_frame on
 }
 
+std::optional<double> knownReadout(const EstimateOptions& o) {
+  const std::optional<double> file = o.camera ? o.camera->rolling_shutter_readout : std::nullopt;
+  if (o.rolling_shutter_readout && file && *o.rolling_shutter_readout != *file)
+    throw std::invalid_argument(fmt::format("rolling shutter readout {} given and {} in the camera file {}: give it once",
+                                            *o.rolling_shutter_readout, *file, o.camera->source));
+  const std::optional<double> tau = o.rolling_shutter_readout ? o.rolling_shutter_readout : file;
+  if (tau && (!std::isfinite(*tau) || std::abs(*tau) > kMaxRollingShutterReadout))
+    throw std::invalid_argument(fmt::format("rolling shutter readout {} frame intervals: outside -{} to {}", *tau,
+                                            kMaxRollingShutterReadout, kMaxRollingShutterReadout));
+  return tau;
+}
+
 EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
                         const std::function<void(const std::string&)>& note,
                         const std::function<void(int, int)>& progress) {
@@ -263,11 +275,9 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   // sensor's, before any undistortion).
   Tracks rs_corrected;
   const Tracks* raw = &input;
-  if (o.rolling_shutter_readout) {
-    const double tau = *o.rolling_shutter_readout;
-    if (!std::isfinite(tau) || std::abs(tau) > kMaxRollingShutterReadout)
-      throw std::invalid_argument(fmt::format("rolling shutter readout {} frame intervals: outside -{} to {}", tau,
-                                              kMaxRollingShutterReadout, kMaxRollingShutterReadout));
+  const std::optional<double> known_readout = knownReadout(o);
+  if (known_readout) {
+    const double tau = *known_readout;
     if (tau != 0.0) {
       rs_corrected = correctRollingShutter(input, tau);
       raw = &rs_corrected;
@@ -276,7 +286,7 @@ EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
   }
   // A known camera: the tracks onto its ideal pinhole, its intrinsics known.
   EstimateOptions known = o;
-  if (o.rolling_shutter_readout) known.refine.estimate_readout = false;  // known: not a parameter
+  if (known_readout) known.refine.estimate_readout = false;  // known: not a parameter
   Tracks undistorted;
   const Tracks* t = raw;
   if (o.camera) {

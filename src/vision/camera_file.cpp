@@ -51,6 +51,12 @@ int intNode(const cv::FileStorage& fs, const char* name, const std::filesystem::
   return static_cast<int>(v);
 }
 
+double realNode(const cv::FileStorage& fs, const char* name, const std::filesystem::path& f) {
+  const cv::FileNode n = fs[name];
+  if (n.empty() || !(n.isInt() || n.isReal())) bad(f, fmt::format("missing or non-numeric node \"{}\"", name));
+  return static_cast<double>(n);
+}
+
 CameraCalibration fromStorage(const cv::FileStorage& fs, const std::filesystem::path& file);
 
 /// Checks YAML text line by line against what calibration files hold (cv::calibrateCamera tools,
@@ -265,6 +271,13 @@ CameraCalibration fromStorage(const cv::FileStorage& fs, const std::filesystem::
       if (!std::isfinite(v)) bad(file, "\"distortion_coefficients\" has a non-finite entry");
       c.distortion.push_back(v);
     }
+  }
+  if (!fs["rolling_shutter_readout"].empty()) {
+    const double tau = realNode(fs, "rolling_shutter_readout", file);
+    if (!std::isfinite(tau) || std::abs(tau) > kMaxRollingShutterReadout)
+      bad(file, fmt::format("\"rolling_shutter_readout\" {} frame intervals: outside -{} to {}", tau, kMaxRollingShutterReadout,
+                            kMaxRollingShutterReadout));
+    c.rolling_shutter_readout = tau;
   }
   return c;
 }

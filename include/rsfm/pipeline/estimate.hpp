@@ -137,6 +137,12 @@ class NoPlaneFound : public std::invalid_argument {
   using std::invalid_argument::invalid_argument;
 };
 
+/// The rolling shutter's known readout of a run (docs/estimate.md section 6): the one given
+/// (rolling_shutter_readout), else the calibration file's (camera->rolling_shutter_readout), else
+/// none (the refinement estimates it). Throws std::invalid_argument when both are given and differ,
+/// or when it is beyond kMaxRollingShutterReadout.
+std::optional<double> knownReadout(const EstimateOptions& options);
+
 /// Runs the pipeline. `note` receives one-line progress notes (the planes found, the start; a
 /// line starting "warning: " is a warning), `progress` the filter's frames. Throws NoPlaneFound,
 /// std::invalid_argument for options out of range or too few tracks; a filter that stops on

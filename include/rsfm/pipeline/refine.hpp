@@ -36,13 +36,6 @@
 
 namespace rsfm {
 
-/// The largest rolling-shutter readout taken, either way (frame intervals): a sensor reads its
-/// rows within about one frame interval (the first-order correction's best fit can exceed it a
-/// little: box.mp4's windows fit best at 1-1.5, docs/regimes.md). A known readout beyond it is
-/// refused (EstimateOptions::rolling_shutter_readout); an estimate beyond it is the data pulling
-/// the camera where no camera is, and the readout is held at 0.
-inline constexpr double kMaxRollingShutterReadout = 2.0;
-
 struct RefineOptions {
   bool enabled = true;                 ///< false: no refinement (--refine none)
   bool estimate_principal_point = true;  ///< false: held at the tracks' principal point (known)

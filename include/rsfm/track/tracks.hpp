@@ -79,6 +79,13 @@ std::size_t leadingEmptyFrames(const Frames& frames) {
 /// how many. first_frame (or frame_numbers) follows. A sequence without any track is left as is.
 int trimLeadingEmptyFrames(Tracks* t);
 
+/// The largest rolling-shutter readout taken, either way (frame intervals): a sensor reads its
+/// rows within about one frame interval (the first-order correction's best fit can exceed it a
+/// little: box.mp4's windows fit best at 1-1.5, docs/regimes.md). A known readout beyond it is
+/// refused (EstimateOptions::rolling_shutter_readout, a camera file's); an estimate beyond it is
+/// the data pulling the camera where no camera is, and the refinement holds the readout at 0.
+inline constexpr double kMaxRollingShutterReadout = 2.0;
+
 /// A rolling shutter's first-order correction (docs/estimate.md section 6, "A rolling shutter"):
 /// a sensor that reads its rows one after another over `readout` frame intervals (0: a global
 /// shutter; the middle row at the frame's time) sees a point moving at v px/frame at

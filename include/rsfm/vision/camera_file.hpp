@@ -8,6 +8,7 @@
 #include <Eigen/Core>
 
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -20,6 +21,10 @@ struct CameraCalibration {
   int width = 0, height = 0;
   double fx = 0, fy = 0, cx = 0, cy = 0;
   std::vector<double> distortion;  ///< OpenCV's order: k1, k2, p1, p2[, k3, k4, k5, k6, ...]; may be empty
+  /// A rolling shutter's known readout, frame intervals (node `rolling_shutter_readout`: rsfm's
+  /// camera.yaml writes it when its refinement determined it, docs/outputs.md; calibration tools
+  /// do not). Absent: not known (the refinement estimates it). At most kMaxRollingShutterReadout.
+  std::optional<double> rolling_shutter_readout;
   std::string source;              ///< the file it came from
   double focal() const { return 0.5 * (fx + fy); }
   bool distorted() const;
