@@ -122,6 +122,13 @@ def test_options_take_effect(scene):
     assert known["summary"]["principal_point_px"] == pytest.approx([319.5, 239.5])
     online = rsfm.estimate(rows, image_size=(W, H), refine="none", quiet=True)
     assert not online["refined"]
+    # The rolling shutter's readout: estimated by default, known when given (a known global shutter: 0).
+    estimated = rsfm.estimate(rows, image_size=(W, H), quiet=True)["summary"]
+    assert estimated["camera"]["readout_estimated"] and estimated["rolling_shutter_readout"] is None
+    assert abs(estimated["camera"]["readout"]) < 3 * estimated["camera"]["readout_sd"]  # the scene's shutter is global
+    given = rsfm.estimate(rows, image_size=(W, H), rolling_shutter_readout=0.0, quiet=True)["summary"]
+    assert not given["camera"]["readout_estimated"] and given["camera"]["readout"] is None
+    assert given["rolling_shutter_readout"] == 0.0
 
 
 def test_errors_are_the_cli_messages(scene, tracks_file):
