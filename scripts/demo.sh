@@ -36,6 +36,10 @@ print(f"   planes {len(s['planes'])}, tracks per plane {s['plane_tracks']}, outl
 for a in s["angles_between_planes_deg"]:
     print(f"   angle between planes {a['planes'][0]} and {a['planes'][1]}: {a['angle_deg']:.1f} deg (box faces: 90)")
 print(f"   reprojection RMS per plane (px): {', '.join(f'{v:.2f}' for v in s['plane_reprojection_rms_px'])}")
+c = s.get("camera") or {}
+if c.get("readout") is not None:  # a webcam: its rows read one after another (docs/estimate.md section 6)
+    print(f"   rolling shutter readout {c['readout']:.2f} +- {c['readout_sd']:.2f} frame intervals"
+          f"{'' if c.get('readout_determined') else ' (not determined)'}")
 PY
 else
   echo "== (b) skipped: $BOX_GZ not installed (apt-get install opencv-doc)"
