@@ -560,8 +560,16 @@ void checkBoundAgainstTheDenseInverse(double readout) {
   ASSERT_TRUE(r.converged) << r.message;
   EXPECT_NEAR(r.state.readout, readout, 1e-6);
   EXPECT_NEAR(r.state.beta, st.beta, 1e-6);
-  // Held (not free) at the truth, it stays there; held at 0 the fit is worse.
+  // Held (not free) at the truth, it stays there and the exact data fit (the constant block's
+  // term is in every residual); held at 0 the fit is worse.
   so.readout_free = false;
+  PlaneBatchState at_truth = st;
+  at_truth.beta *= 1.01;  // something to solve for
+  const PlaneBatchResult held = solvePlaneBatch(s.data, at_truth, so);
+  ASSERT_TRUE(held.converged) << held.message;
+  EXPECT_EQ(held.state.readout, readout);
+  EXPECT_NEAR(held.state.beta, st.beta, 1e-6);
+  EXPECT_LT(held.final_cost, 1e-10);
   const PlaneBatchResult held0 = solvePlaneBatch(s.data, start, so);
   ASSERT_TRUE(held0.converged) << held0.message;
   EXPECT_EQ(held0.state.readout, 0.0);

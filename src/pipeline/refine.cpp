@@ -371,7 +371,9 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       res = std::move(rd);
     }
   }
-  for (int round = 0; round < 2 && !camera_solved &&
+  // Each round either accepts its solve or holds one more of the principal point, the distortion
+  // and the readout: at most four rounds, the last one's solve accepted unless it failed.
+  for (int round = 0; round < 4 && !camera_solved &&
                       (r.readout_free || std::any_of(r.camera_free.begin(), r.camera_free.end(), [](bool b) { return b; }));
        ++round) {
     bo.camera_free = r.camera_free;
@@ -394,6 +396,20 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   }
   bo.camera_free = r.camera_free;
   bo.readout_free = r.readout_free;
+  // A readout held after an earlier solve estimated it (the principal point's decision solve; a
+  // later solve failed or found it implausible) is held at 0, a global shutter's, as reported:
+  // solved again from there (where it stood with the readout at 0 if that fails).
+  if (!r.readout_free && res.state.readout != 0.0) {
+    p.start = res.state;
+    p.start.readout = 0.0;
+    PlaneBatchResult rz;
+    if (solve(p, sigma0, &rz)) {
+      r.iterations += rz.iterations;
+      res = std::move(rz);
+    } else {
+      res.state.readout = 0.0;
+    }
+  }
   // Stage 3: tracks off their plane under the final model become outliers; solve again without
   // them, with the noise and the loss's scale from the remaining residuals.
   {
@@ -421,7 +437,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       const bool readout_before = r.readout_free;
       const std::size_t why_before = why.size();
       bool solved = static_cast<int>(q.data.point_ids.size()) >= 5 && solve(q, sigma1, &res2);
-      for (int round = 0; round < 2 && solved && holdImplausible(res2.state); ++round) {
+      for (int round = 0; round < 3 && solved && holdImplausible(res2.state); ++round) {
         // Without the outliers the data pull the camera where no camera is (box.mp4's windows
         // 14 and 18: the principal point 195 px below the centre): held, as in stage 2, and
         // solved again from there with the held components at the nominal camera.

@@ -67,7 +67,8 @@ struct RefineOptions {
   /// the tracks already corrected: EstimateOptions::rolling_shutter_readout).
   bool estimate_readout = true;
   /// Its prior about 0 (a global shutter), sd in frame intervals: weak against a moving scene's
-  /// ~10^4 observations (sd ~0.05 on box.mp4), it bounds the readout where nothing moves.
+  /// ~10^4 observations (sds of 0.06-0.16 on box.mp4's windows), it bounds the readout where
+  /// nothing moves.
   double readout_prior_sd = 1.0;
   /// A principal point the data do not determine (its sd above determinacy.hpp's limit after the
   /// outlier stage) is held at the nominal centre and the rest solved again, its prior sd kept in
