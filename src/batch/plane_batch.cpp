@@ -485,12 +485,7 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   // The readout: a parameter block of its own whenever the data carry a rolling shutter's shifts
   // and it is free or non-zero; it then goes with the camera's block (held at zero when unused:
   // RadialCamera of the zero camera is the identity), so the frame-0 residuals have one form.
-  if (data.hasReadout() && (static_cast<int>(data.readout_shift.size()) != F + 1 ||
-                            [&] {
-                              for (int k = 0; k <= F; ++k)
-                                if (data.readout_shift[k].size() != data.frames[k].size()) return true;
-                              return false;
-                            }())) {
+  if (!data.readoutShiftMatches()) {
     res.message = "batch: readout_shift does not match the observations";
     return res;
   }
@@ -574,13 +569,11 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
     for (std::size_t j = 0; j < data.frames[0].size(); ++j) {
       const Observation& o = data.frames[0][j];
       if (o.id < 0 || o.id >= P) continue;
-      if (use_readout)
-        problem.AddResidualBlock(new ReferenceCameraCost(o.uv, data.sigma_uv, slot[o.id], readoutTerm(0, j)), loss,
-                                 refBlock(o.id), &beta, camera.data(), &readout);
-      else if (use_camera)
-        problem.AddResidualBlock(new ReferenceCameraCost(o.uv, data.sigma_uv, slot[o.id]), loss, refBlock(o.id), &beta,
-                                 camera.data());
-      else
+      if (use_camera) {
+        std::vector<double*> blocks{refBlock(o.id), &beta, camera.data()};
+        if (use_readout) blocks.push_back(&readout);
+        problem.AddResidualBlock(new ReferenceCameraCost(o.uv, data.sigma_uv, slot[o.id], readoutTerm(0, j)), loss, blocks);
+      } else
         problem.AddResidualBlock(new ReferenceCost(o.uv, data.sigma_uv, slot[o.id]), loss, refBlock(o.id));
       ++res.residuals;
     }

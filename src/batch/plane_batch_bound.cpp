@@ -195,15 +195,10 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     out.message = "bound: inconsistent problem sizes";
     return out;
   }
-  if (data.hasReadout() && static_cast<int>(data.readout_shift.size()) != F + 1) {
+  if (!data.readoutShiftMatches()) {
     out.message = "bound: readout_shift does not match the observations";
     return out;
   }
-  for (int k = 0; k <= F && data.hasReadout(); ++k)
-    if (data.readout_shift[k].size() != data.frames[k].size()) {
-      out.message = "bound: readout_shift does not match the observations";
-      return out;
-    }
   // A rolling shutter's readout moves each prediction by readout x shift (plane_batch.hpp); as a
   // parameter it is one more column, shift / sigma.
   const bool use_readout = data.hasReadout() && (opt.readout_free || at.readout != 0.0);

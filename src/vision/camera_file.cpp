@@ -43,18 +43,16 @@ cv::Mat matrixNode(const cv::FileStorage& fs, const char* name, const std::files
   return m;
 }
 
-int intNode(const cv::FileStorage& fs, const char* name, const std::filesystem::path& f) {
-  const cv::FileNode n = fs[name];
-  if (n.empty() || !(n.isInt() || n.isReal())) bad(f, fmt::format("missing or non-numeric node \"{}\"", name));
-  const double v = static_cast<double>(n);
-  if (!(v >= 1 && v <= 65536) || v != std::floor(v)) bad(f, fmt::format("\"{}\" must be a positive integer, got {}", name, v));
-  return static_cast<int>(v);
-}
-
 double realNode(const cv::FileStorage& fs, const char* name, const std::filesystem::path& f) {
   const cv::FileNode n = fs[name];
   if (n.empty() || !(n.isInt() || n.isReal())) bad(f, fmt::format("missing or non-numeric node \"{}\"", name));
   return static_cast<double>(n);
+}
+
+int intNode(const cv::FileStorage& fs, const char* name, const std::filesystem::path& f) {
+  const double v = realNode(fs, name, f);
+  if (!(v >= 1 && v <= 65536) || v != std::floor(v)) bad(f, fmt::format("\"{}\" must be a positive integer, got {}", name, v));
+  return static_cast<int>(v);
 }
 
 CameraCalibration fromStorage(const cv::FileStorage& fs, const std::filesystem::path& file);

@@ -91,6 +91,14 @@ struct PlaneBatchData {
   /// PlaneBatchState::readout times it. Empty: a global shutter (no readout parameter).
   std::vector<std::vector<Eigen::Vector2d>> readout_shift;
   bool hasReadout() const { return !readout_shift.empty(); }
+  /// readout_shift empty, or one shift per observation of every frame.
+  bool readoutShiftMatches() const {
+    if (readout_shift.empty()) return true;
+    if (readout_shift.size() != frames.size()) return false;
+    for (std::size_t k = 0; k < frames.size(); ++k)
+      if (readout_shift[k].size() != frames[k].size()) return false;
+    return true;
+  }
   /// The shift of frames[k][j] (zero without readout_shift).
   Eigen::Vector2d shift(int k, std::size_t j) const {
     return readout_shift.empty() ? Eigen::Vector2d::Zero() : readout_shift[k][j];

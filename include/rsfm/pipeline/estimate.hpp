@@ -27,7 +27,6 @@
 
 namespace rsfm {
 
-
 struct EstimateOptions {
   /// The recursive filter: model (point | plane | planes), known or initial focal length, tracking
   /// noise, process noise, passes... Its beta_sd0 and normal_sd0, when unset, follow the start:

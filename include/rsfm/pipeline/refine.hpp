@@ -6,9 +6,10 @@
 // every plane N (plane 0's N_Z held: the filter's scale gauge), every track's reference-frame
 // position (tracks born later anchored by their own observations), and the image-side camera
 // (models/radial_camera.hpp): the principal point and OpenCV's k1, k2, each estimated unless
-// known, and a rolling shutter's readout (docs/estimate.md section 6). Residuals in pixels (through s), under a Huber loss whose scale is `loss_sigmas` times
-// the residuals' robust sd (1.4826 MAD) at the start. Stages: (1) the camera held (principal point
-// at the tracks', no distortion) from the filter's estimate; (2) the camera's free components
+// known, and a rolling shutter's readout (docs/estimate.md section 6). Residuals in pixels
+// (through s), under a Huber loss whose scale is `loss_sigmas` times the residuals' robust sd
+// (1.4826 MAD) at the start. Stages: (1) the camera held (principal point at the tracks', no
+// distortion) from the filter's estimate; (2) the camera's free components
 // released from there; an implausible camera (the principal point beyond `max_principal_offset`, a
 // distortion that folds the image) is held again and reported not determined; (3) a track whose
 // residual RMS under that model exceeds `outlier_sigmas` robust sds is relabelled an outlier (-1)
@@ -63,8 +64,8 @@ struct RefineOptions {
   /// A rolling shutter's readout (frame intervals, first row to last; docs/estimate.md section 6)
   /// as a camera parameter: every prediction moves by readout x (y - mid) / height x its track's
   /// velocity (rollingShutterShift), released with the camera in stage 2, held at 0 when
-  /// implausible (beyond kMaxRollingShutterReadout either way). false: a global shutter (or a known readout,
-  /// the tracks already corrected: EstimateOptions::rolling_shutter_readout).
+  /// implausible (beyond kMaxRollingShutterReadout either way). false: a global shutter (or a
+  /// known readout, the tracks already corrected: EstimateOptions::rolling_shutter_readout).
   bool estimate_readout = true;
   /// Its prior about 0 (a global shutter), sd in frame intervals: weak against a moving scene's
   /// ~10^4 observations (sds of 0.06-0.16 on box.mp4's windows), it bounds the readout where
