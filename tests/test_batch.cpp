@@ -582,6 +582,80 @@ TEST(PlaneBatchBound, TheRollingShuttersReadoutAgainstTheDenseInverseAndTheSolve
   checkBoundAgainstTheDenseInverse(0.7);
 }
 
+TEST(PlaneBatchBound, AWeakDirectionKeepsItsVarianceAndWhatItBarelyTouchesStaysEstimable) {
+  // The readout's column made the principal point's (dc_x) plus eps times a random one: for
+  // eps > 0 the columns span the same space whatever eps, so beta's and the normal's variances
+  // are the same for every eps (the marginal variance depends on the other columns' span only),
+  // while the readout's and dc_x's grow as 1/eps^2. As eps falls, the direction (readout - dc_x)
+  // falls through 1e-10 of the largest eigenvalue, where it used to count as null: beta and the
+  // normal, which it touches only through rounding-sized components, were then called not
+  // estimable and their variances lost its share (an edge-on plane did that to a whole refinement:
+  // RollingShutter.TheReadoutKnownOrEstimated...). At eps = 0 it is a null direction proper.
+  const int F = 60;
+  Sequence s = makeSequence(1.0, 11, F);
+  PlaneBatchState st = truthState(s);
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> N01;
+  std::vector<std::vector<Eigen::Vector2d>> dcx(F + 1), random(F + 1);
+  for (int k = 0; k <= F; ++k)
+    for (auto& o : s.data.frames[k]) {
+      Eigen::Vector2d r;
+      Eigen::Matrix<double, 2, 4> Jc;
+      if (k == 0)
+        planeBatchReferenceResidual(st.ref[o.id], st.beta, st.camera, Eigen::Vector2d::Zero(), 1.0, &r, nullptr, nullptr, &Jc);
+      else
+        ASSERT_EQ(planeBatchResidual(st.t[k], Eigen::Vector3d::Zero(), st.R[k], st.beta, st.N[0], st.ref[o.id],
+                                     Eigen::Vector2d::Zero(), 1.0, &r, nullptr, nullptr, nullptr, nullptr, &st.camera, &Jc),
+                  MeasureStatus::Ok);
+      o.uv = r;  // exact observations
+      dcx[k].push_back(Jc.col(0));
+      random[k].push_back(Eigen::Vector2d(N01(rng), N01(rng)));
+    }
+  PlaneBatchBoundOptions bo;
+  bo.camera_free = {true, false, false, false};
+  bo.readout_free = true;
+  auto bound = [&](double eps) {
+    s.data.readout_shift.assign(F + 1, {});
+    for (int k = 0; k <= F; ++k)
+      for (std::size_t j = 0; j < dcx[k].size(); ++j) s.data.readout_shift[k].push_back(dcx[k][j] + eps * random[k][j]);
+    return planeBatchBound(s.data, st, bo);
+  };
+  auto normalVar = [](const PlaneBatchBound& b) { return b.cov_N[0].topLeftCorner<2, 2>().trace(); };
+  const PlaneBatchBound ref = bound(1e-1);
+  ASSERT_TRUE(ref.ok) << ref.message;
+  ASSERT_EQ(ref.null_dim, 0);
+  ASSERT_TRUE(ref.readout_estimable);
+  bool weak_seen = false;
+  for (const double eps : {1e-2, 1e-4, 1e-6, 3e-7, 1e-7}) {
+    const PlaneBatchBound b = bound(eps);
+    ASSERT_TRUE(b.ok) << b.message;
+    std::printf("eps %.0e: null_dim %d (weak %d), var beta / eps 0.1's %.6f, normal %.6f, readout sd %.3g\n", eps, b.null_dim,
+                b.weak_dim, b.var_beta / ref.var_beta, normalVar(b) / normalVar(ref), std::sqrt(b.var_readout));
+    EXPECT_EQ(b.null_dim, b.weak_dim) << "eps " << eps << ": a direction the data see was called rounding";
+    weak_seen = weak_seen || b.weak_dim > 0;
+    EXPECT_TRUE(b.beta_estimable) << "eps " << eps;
+    EXPECT_TRUE(b.normal_estimable[0]) << "eps " << eps;
+    EXPECT_NEAR(b.var_beta / ref.var_beta, 1.0, 1e-3) << "eps " << eps;
+    EXPECT_NEAR(normalVar(b) / normalVar(ref), 1.0, 1e-3) << "eps " << eps;
+    // The readout is as sure as the random column lets it be: its sd grows as 1/eps.
+    EXPECT_NEAR(std::sqrt(b.var_readout / ref.var_readout) * eps / 1e-1, 1.0, 0.05) << "eps " << eps;
+    if (b.weak_dim > 0) {
+      EXPECT_FALSE(b.readout_estimable) << "eps " << eps << ": its variance is the weak direction's";
+      EXPECT_FALSE(b.camera_estimable[0]) << "eps " << eps;
+    }
+  }
+  EXPECT_TRUE(weak_seen) << "no eps made the direction weak: the test shows nothing";
+  // eps = 0: dc_x and the readout are one parameter, a null direction proper.
+  const PlaneBatchBound zero = bound(0.0);
+  ASSERT_TRUE(zero.ok) << zero.message;
+  EXPECT_EQ(zero.null_dim, 1);
+  EXPECT_EQ(zero.weak_dim, 0);
+  EXPECT_TRUE(zero.beta_estimable);
+  EXPECT_TRUE(zero.normal_estimable[0]);
+  EXPECT_FALSE(zero.readout_estimable);
+  EXPECT_FALSE(zero.camera_estimable[0]);
+}
+
 TEST(PlaneBatch, GroupedReferenceBlocksReachTheSameOptimum) {
   // The refinement's solve (motions eliminated first, dogleg) with the references of 4
   // consecutive points in one parameter block against a block per point: the same problem, so

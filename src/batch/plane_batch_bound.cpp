@@ -34,9 +34,14 @@ bool PlaneBatchBound::estimable(double g_beta, const std::vector<Eigen::Vector3d
   else if (g_readout != 0)
     return false;
   if (g.norm() == 0) return true;
-  if (null_scaled.cols() == 0) return true;
   const Eigen::VectorXd gs = scale.cwiseProduct(g);
-  return (null_scaled.transpose() * gs).norm() <= 1e-6 * gs.norm();
+  // Orthogonal to the null space proper (eigenvalues at rounding level)...
+  if (null_scaled.cols() > 0 && (null_scaled.transpose() * gs).norm() > 1e-6 * gs.norm()) return false;
+  if (weak_scaled.cols() == 0) return true;
+  // ...and carried by the directions the data see: the weak directions' share of its variance,
+  // sum_i (u_i^T g_s)^2 / lambda_i (already in cov), at most half of it.
+  const double share = (weak_scaled.transpose() * gs).cwiseAbs2().cwiseQuotient(weak_lambda).sum();
+  return share <= 0.5 * g.dot(cov * g);
 }
 
 namespace {
@@ -388,6 +393,12 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
   // Null space and pseudo-inverse, on the matrix scaled to unit diagonal (parameters differ in
   // units). A parameter whose information is negligible against the largest (a plane under pure
   // rotation: only rounding) keeps the largest's scale, so that it shows in the null space.
+  // Eigenvalues up to kRoundingEigen of the largest are rounding (the exact nulls measured here
+  // are ~1e-16; the assembly's relative error is ~sqrt(observations) eps): the null space. Those
+  // up to kWeakEigen are the data's, however weak (an edge-on plane: 1e-13..1e-11; a translation
+  // whose perspective barely shows the affine ambiguity: 1e-11..1e-9): they are left out of the
+  // pseudo-inverse, which the clustered widening below works on, and their variance is added to
+  // cov after it; a quantity whose variance they carry more than half of is not estimable.
   const double dmax = std::max(1e-300, S.diagonal().maxCoeff());
   Eigen::VectorXd d(n);
   for (int i = 0; i < n; ++i) d[i] = 1.0 / std::sqrt(S(i, i) > 1e-12 * dmax ? S(i, i) : dmax);
@@ -398,17 +409,25 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     return out;
   }
   const Eigen::VectorXd& lam = es.eigenvalues();
-  const double tol = 1e-10 * std::max(1e-300, lam.maxCoeff());
+  constexpr double kRoundingEigen = 1e-14, kWeakEigen = 1e-10;
+  const double lmax = std::max(1e-300, lam.maxCoeff()), tol = kWeakEigen * lmax;
   // S+ = U diag(1/lam) U^T over the kept eigenvectors, as one product (Us = U diag(lam^-1/2)).
-  std::vector<int> null_cols, kept;
-  for (int i = 0; i < n; ++i) (lam[i] <= tol ? null_cols : kept).push_back(i);
+  std::vector<int> null_cols, weak_cols, kept;
+  for (int i = 0; i < n; ++i) (lam[i] <= kRoundingEigen * lmax ? null_cols : lam[i] <= tol ? weak_cols : kept).push_back(i);
   Eigen::MatrixXd Us(n, static_cast<Eigen::Index>(kept.size()));
   for (size_t j = 0; j < kept.size(); ++j) Us.col(static_cast<Eigen::Index>(j)) = es.eigenvectors().col(kept[j]) / std::sqrt(lam[kept[j]]);
   Eigen::MatrixXd pinv(n, n);
   pinv.noalias() = Us * Us.transpose();
-  out.null_dim = static_cast<int>(null_cols.size());
-  out.null_scaled.resize(n, out.null_dim);
-  for (int i = 0; i < out.null_dim; ++i) out.null_scaled.col(i) = es.eigenvectors().col(null_cols[i]);
+  out.weak_dim = static_cast<int>(weak_cols.size());
+  out.null_dim = static_cast<int>(null_cols.size()) + out.weak_dim;
+  out.null_scaled.resize(n, static_cast<Eigen::Index>(null_cols.size()));
+  for (std::size_t i = 0; i < null_cols.size(); ++i) out.null_scaled.col(static_cast<Eigen::Index>(i)) = es.eigenvectors().col(null_cols[i]);
+  out.weak_scaled.resize(n, out.weak_dim);
+  out.weak_lambda.resize(out.weak_dim);
+  for (int i = 0; i < out.weak_dim; ++i) {
+    out.weak_scaled.col(i) = es.eigenvectors().col(weak_cols[i]);
+    out.weak_lambda[i] = lam[weak_cols[i]];
+  }
   out.scale = d;
   out.cov = d.asDiagonal() * pinv * d.asDiagonal();  // back to the original units
   out.ok = true;
@@ -584,6 +603,12 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
       }
     }
     planeJackknife(data, iN, tp, sandwich_N, &out);
+  }
+  if (out.weak_dim > 0) {
+    // The weak directions' variance (above), in the original units.
+    Eigen::MatrixXd Ws = d.asDiagonal() * out.weak_scaled;
+    for (int i = 0; i < out.weak_dim; ++i) Ws.col(i) /= std::sqrt(out.weak_lambda[i]);
+    out.cov.noalias() += Ws * Ws.transpose();
   }
   const Eigen::MatrixXd& cov = out.cov;
   out.beta_estimable = iBeta >= 0 && out.estimable(1.0, {}, Eigen::Vector4d::Zero());

@@ -167,7 +167,9 @@ void planeBatchReferenceResidual(const Eigen::Vector2d& ref, double beta, const 
 /// (frame 0 as reference residuals) with the gauge component removed, the per-frame motions
 /// eliminated by Schur complement (each frame needs >= 4 observations: otherwise ok = false), and
 /// its null space found by eigen-decomposition. A quantity is estimable when its gradient is
-/// orthogonal to that null space; its bound is then the pseudo-inverse's quadratic form.
+/// orthogonal to that null space and the weak directions (eigenvalues between rounding and 1e-10
+/// of the largest) carry at most half its variance; its bound is then the pseudo-inverse's
+/// quadratic form plus the weak directions' share.
 /// Pure rotation leaves the planes in the null space; pure translation leaves beta and the
 /// planes' tilt (the affine ambiguity).
 struct PlaneBatchBoundOptions {
@@ -209,7 +211,11 @@ struct PlaneBatchBound {
   bool ok = false;
   std::string message;
   int parameters = 0;   ///< references, beta, the planes and the free camera components (motions eliminated)
-  int null_dim = 0;     ///< dimension of the null space
+  /// Eigenvalues of the scaled information up to 1e-10 of the largest: the null space proper
+  /// (up to 1e-14: rounding) and `weak_dim` directions the data see, however weakly, whose
+  /// variance is in cov (plane_batch_bound.cpp).
+  int null_dim = 0;
+  int weak_dim = 0;
   bool beta_estimable = false;
   double var_beta = 0;                      ///< when estimable
   std::vector<bool> normal_estimable;       ///< per plane: the normal's direction (2 tangent functionals)
@@ -243,12 +249,14 @@ struct PlaneBatchBound {
   /// plane's normal must not be called determined.
   std::vector<double> jackknife_N, jackknife_ratio_N;
   /// Whether a functional of (beta, N..., camera) is estimable: `g_beta`, per plane `g_N` (3) and
-  /// `g_camera` (4) and `g_readout` its gradient.
+  /// `g_camera` (4) and `g_readout` its gradient. It is when orthogonal to the null space proper
+  /// and the weak directions carry at most half its variance g^T cov g.
   bool estimable(double g_beta, const std::vector<Eigen::Vector3d>& g_N, const Eigen::Vector4d& g_camera,
                  double g_readout = 0.0) const;
-  // Internal: the kept parameters' pseudo-inverse covariance, scaling and null space.
-  Eigen::MatrixXd cov, null_scaled;
-  Eigen::VectorXd scale;
+  // Internal: the kept parameters' covariance (the pseudo-inverse, widened, plus the weak
+  // directions' variance), scaling, null space and weak directions (scaled) with their eigenvalues.
+  Eigen::MatrixXd cov, null_scaled, weak_scaled;
+  Eigen::VectorXd scale, weak_lambda;
   int beta_index = -1;               ///< -1: beta held
   std::vector<int> N_index;          ///< 3 per plane, -1 for the gauge component
   std::array<int, 4> camera_index{-1, -1, -1, -1};
