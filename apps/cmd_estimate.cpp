@@ -185,6 +185,11 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
                 "a rolling shutter's known readout time in frame intervals (0: a global shutter): the tracks are moved "
                 "to a global shutter's positions with their own velocities first and the refinement does not "
                 "estimate it (default: estimated; docs/estimate.md section 6)");
+  a->add_option("--readout-direction", e->readout_direction,
+                "down | up | right | left: the way the rolling shutter's readout travels across the image (default: "
+                "the tracks' own, down unless the video's rotation metadata turned the frames; docs/estimate.md "
+                "section 6)")
+      ->check(CLI::IsMember({"down", "up", "right", "left"}));
   a->add_option("--refine", e->refine,
                 "final | none (final: a bundle adjustment of the plane model over every frame after the filter, also for the point model's run; docs/estimate.md section 4)")
       ->capture_default_str();
@@ -254,6 +259,12 @@ std::string finishEstimateOptions(EstimateCli* e) {
   if (e->patches && e->est.camera && e->est.camera->rolling_shutter_readout.value_or(0.0) != 0.0)
     return e->camera_file + ": its rolling_shutter_readout applies to the point and plane models (--model patches does not "
                             "correct its patches)";
+  if (!e->readout_direction.empty()) {
+    if (e->patches) return "--readout-direction applies to the point and plane models (--model patches has no readout)";
+    ReadoutDirection d;
+    if (!parseReadoutDirection(e->readout_direction, &d)) return "--readout-direction must be down, up, right or left";
+    e->est.readout_direction = d;
+  }
   try {
     knownReadout(e->est);  // given twice and different, or out of range: said here, before anything runs
   } catch (const std::invalid_argument& ex) {
@@ -464,6 +475,7 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
                                     {"from_tracking_noise", r.filter_used.sigma_px > e.est.filter.sigma_px}};
   const std::optional<double> readout = knownReadout(e.est);  // checked by finishEstimateOptions
   rep.extra["rolling_shutter_readout"] = readout ? nlohmann::json(*readout) : nlohmann::json(nullptr);
+  rep.extra["rolling_shutter_readout_direction"] = readoutDirectionName(r.image.readout_direction);
   rep.extra["stage_seconds"] = {{"plane_finding", r.seconds.plane_finding}, {"start", r.seconds.start},
                                 {"filter", r.seconds.filter}, {"refinement", r.seconds.refinement}};
 }

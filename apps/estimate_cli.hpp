@@ -32,6 +32,7 @@ struct EstimateCli {
   std::string refine = "final";    ///< --refine final | none
   std::string camera_file;         ///< --camera FILE
   std::vector<double> principal_point;  ///< --principal-point X,Y
+  std::string readout_direction;        ///< --readout-direction down|up|right|left (empty: the tracks')
   bool plots = true;
   bool quiet = false;
   std::string out = "out/estimate";  ///< --out: the output directory, replaced whole (io::OutputDir)

@@ -187,6 +187,10 @@ check "estimate: principal point outside the image" 2 "$E" -- estimate --tracks 
 check "estimate: principal point not a pair" 2 "$E" -- estimate --tracks "$CT" --out "$E" --principal-point 300
 check "estimate: rolling shutter readout out of range" 2 "$E" -- estimate --tracks "$CT" --out "$E" --rolling-shutter-readout 3
 check "estimate: rolling shutter readout with the patch model" 2 "$E" -- estimate --tracks "$CT" --out "$E" --model patches --rolling-shutter-readout 1
+check "estimate: readout direction not a direction" 2 "$E" -- estimate --tracks "$CT" --out "$E" --readout-direction sideways
+check "estimate: readout direction with the patch model" 2 "$E" -- estimate --tracks "$CT" --out "$E" --model patches --readout-direction left
+{ printf '# rsfm-tracks 1\n# image_size 640 480\n# readout_direction diagonal\n# frames 0 1\nframe,track,x,y\n0,0,1,1\n1,0,2,1\n'; } >"$TMP/rd.csv"
+check "estimate: tracks file with a bad readout direction" 2 "$E" -- estimate --tracks "$TMP/rd.csv" --out "$E"
 { cat "$TMP/good.yaml"; echo "rolling_shutter_readout: 0.9"; } >"$TMP/rs.yaml"
 check "estimate: readout given and in the camera file, different" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/rs.yaml" --rolling-shutter-readout 0.5
 check "estimate: camera file's readout with the patch model" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/rs.yaml" --model patches

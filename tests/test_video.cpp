@@ -139,6 +139,8 @@ TEST(TracksIo, RoundTripKeepsEverything) {
   writeText(d / "tracks.csv", io::tracksToString(st.tracks));
   const Tracks r = io::readTracks(d / "tracks.csv");
   EXPECT_EQ(r.image.width, 512);
+  EXPECT_EQ(r.image.readout_direction, ReadoutDirection::Down);
+  EXPECT_EQ(io::tracksToString(st.tracks).find("readout_direction"), std::string::npos);  // down: not written
   EXPECT_EQ(r.first_frame, 10);
   EXPECT_EQ(r.source, "synthetic box");
   ASSERT_EQ(r.numFrames(), st.tracks.numFrames());
@@ -149,6 +151,16 @@ TEST(TracksIo, RoundTripKeepsEverything) {
       EXPECT_NEAR((r.frames[k][i].px - st.tracks.frames[k][i].px).norm(), 0.0, 1e-4);
     }
   }
+  // A readout along the columns (a video turned by its rotation metadata) is kept, and so is the
+  // principal point's default without a principal_point line.
+  st.tracks.image.readout_direction = ReadoutDirection::Left;
+  std::string text = io::tracksToString(st.tracks);
+  EXPECT_NE(text.find("# readout_direction left\n"), std::string::npos);
+  text.erase(text.find("# principal_point"), text.find('\n', text.find("# principal_point")) - text.find("# principal_point") + 1);
+  writeText(d / "left.csv", text);
+  const Tracks l = io::readTracks(d / "left.csv");
+  EXPECT_EQ(l.image.readout_direction, ReadoutDirection::Left);
+  EXPECT_EQ(l.image.cx, (l.image.width - 1) / 2.0);
   fs::remove_all(d);
 }
 
@@ -173,6 +185,8 @@ TEST(TracksIo, MalformedFilesNameFileAndLine) {
       {head + "0,-1,2,3\n", ":5: track id -1 out of range"},
       {head + "0,1,5000,3\n", ":5: position (5000, 3) far outside"},
       {"# rsfm-tracks 1\n# image_size 640 480\n# frames 0 3\nframe;track;x;y\n", ":4: expected the column header"},
+      {"# rsfm-tracks 1\n# image_size 640 480\n# readout_direction sideways\n", ":3: readout_direction needs one of down"},
+      {"# rsfm-tracks 1\n# image_size 640 480\n# readout_direction left up\n", ":3: readout_direction needs one of down"},
   };
   for (size_t i = 0; i < cases.size(); ++i) {
     const fs::path p = d / ("case" + std::to_string(i) + ".csv");

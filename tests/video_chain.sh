@@ -57,6 +57,21 @@ if command -v ffmpeg >/dev/null; then
   size=$(ffprobe -v error -select_streams v:0 -show_entries stream=codec_name,width,height -of csv=p=0 "$TMP/oddrun/overlay.mp4" 2>&1)
   [ "$size" = "h264,320,240" ] || { echo "FAIL overlay of 319x239 frames: '$size', expected h264,320,240"; exit 1; }
   echo "overlay.mp4 of 319x239 frames: $size (padded, nothing dropped)"
+  # A phone video held upright: rotation metadata, which OpenCV's reader applies (turning the
+  # frames clockwise by 90 deg), so the sensor's rows are the image's columns and the rolling
+  # shutter's readout goes left (docs/estimate.md section 6).
+  ffmpeg -loglevel error -i "$TMP/r/video.mp4" -c copy -metadata:s:v:0 rotate=90 "$TMP/rot90.mp4"
+  if ffprobe -v error -select_streams v:0 -show_entries side_data=rotation -of csv=p=0 "$TMP/rot90.mp4" | grep -q 90; then
+    "$RSFM" run "$TMP/rot90.mp4" --out "$TMP/rotrun" --quiet --no-plots || { echo "FAIL run on a video with rotation metadata"; exit 1; }
+    read -r w h < <(sed -n 's/^# image_size //p' "$TMP/e/tracks.csv")
+    grep -qx "# image_size $h $w" "$TMP/rotrun/tracks.csv" && grep -qx "# readout_direction left" "$TMP/rotrun/tracks.csv" ||
+      { echo "FAIL tracks.csv of a 90-degree rotated video: $(grep -E 'image_size|readout_direction' "$TMP/rotrun/tracks.csv" | tr '\n' ' ')"; exit 1; }
+    grep -q '"rolling_shutter_readout_direction": "left"' "$TMP/rotrun/summary.json" ||
+      { echo "FAIL summary.json of a 90-degree rotated video does not record the readout going left"; exit 1; }
+    echo "a video with 90-degree rotation metadata: frames ${h}x${w}, readout_direction left in tracks.csv and summary.json"
+  else
+    echo "rotation metadata: this ffmpeg did not write it, not checked"
+  fi
 fi
 "$RSFM" evaluate --estimate "$TMP/e" --truth "$TMP/r/truth" >"$TMP/table.txt"
 for f in trajectory.tum planes.csv angles.csv summary.json labels.csv tracks.csv overlay.mp4 report.html motion.png normals.png focal.png \

@@ -126,6 +126,8 @@ inline void writeCsvHeader(std::ostream& os, const char* magic, const ImageInfo&
   os << fmt::format("# image_size {} {}\n", image.width, image.height);
   os << fmt::format("# principal_point {} {}\n", image.cx, image.cy);
   if (image.fps > 0) os << fmt::format("# fps {}\n", image.fps);
+  if (image.readout_direction != ReadoutDirection::Down)
+    os << "# readout_direction " << readoutDirectionName(image.readout_direction) << "\n";
   os << fmt::format("# frames {} {}\n", first_frame, first_frame + frames - 1);
   for (char& c : source)
     if (c == '\n' || c == '\r') c = ' ';
@@ -133,7 +135,7 @@ inline void writeCsvHeader(std::ostream& os, const char* magic, const ImageInfo&
 }
 
 /// The '#' header shared by tracks.csv and patches.csv: "# <magic> 1" first, then image_size,
-/// principal_point, optional fps, frames, source (other '#' lines are comments or format-specific keys).
+/// principal_point, optional fps and readout_direction, frames, source (other '#' lines are comments or format-specific keys).
 struct CsvHeader {
   std::string magic;  ///< "rsfm-tracks" or "rsfm-patches"
   ImageInfo image;
@@ -183,6 +185,10 @@ struct CsvHeader {
         throw inputError(file, ln, fmt::format("fps needs one number above 0 and at most {} (frames per second)",
                                                ImageInfo::kMaxFps));
       image.fps = v[0];
+    } else if (key == "readout_direction") {
+      std::string name, extra;
+      if (!(ss >> name) || (ss >> extra) || !parseReadoutDirection(name, &image.readout_direction))
+        throw inputError(file, ln, "readout_direction needs one of down, up, right, left");
     } else if (key == "source") {
       std::getline(ss >> std::ws, source);
     } else {
@@ -199,9 +205,8 @@ struct CsvHeader {
     if (!size) throw inputError(file, ln, "missing '# image_size W H' header line");
     if (!frames) throw inputError(file, ln, "missing '# frames FIRST LAST' header line");
     if (!pp) {
-      const double fps = image.fps;
-      image = ImageInfo::centred(image.width, image.height);
-      image.fps = fps;
+      image.cx = (image.width - 1) / 2.0;
+      image.cy = (image.height - 1) / 2.0;
     }
   }
 };

@@ -256,9 +256,16 @@ std::optional<double> knownReadout(const EstimateOptions& o) {
   return tau;
 }
 
-EstimateResult estimate(const Tracks& input, const EstimateOptions& o,
+EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
                         const std::function<void(const std::string&)>& note,
                         const std::function<void(int, int)>& progress) {
+  // A readout direction given: the tracks' image says it from here on.
+  Tracks redirected;
+  if (o.readout_direction && *o.readout_direction != given.image.readout_direction) {
+    redirected = given;
+    redirected.image.readout_direction = *o.readout_direction;
+  }
+  const Tracks& input = redirected.frames.empty() ? given : redirected;
   auto say = [&](const std::string& m) {
     if (note) note(m);
   };

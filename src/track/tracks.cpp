@@ -40,21 +40,57 @@ int trimLeadingEmptyFrames(Tracks* t) {
   return static_cast<int>(n);
 }
 
+const char* readoutDirectionName(ReadoutDirection d) {
+  switch (d) {
+    case ReadoutDirection::Up: return "up";
+    case ReadoutDirection::Right: return "right";
+    case ReadoutDirection::Left: return "left";
+    case ReadoutDirection::Down: break;
+  }
+  return "down";
+}
+
+bool parseReadoutDirection(const std::string& name, ReadoutDirection* d) {
+  for (ReadoutDirection c : {ReadoutDirection::Down, ReadoutDirection::Up, ReadoutDirection::Right, ReadoutDirection::Left})
+    if (name == readoutDirectionName(c)) {
+      *d = c;
+      return true;
+    }
+  return false;
+}
+
+ReadoutDirection readoutDirectionAfterRotation(int degrees) {
+  // Turned clockwise by 90, (x, y) -> (h - 1 - y, x): row 0 becomes the right column.
+  switch (((degrees % 360) + 360) % 360) {
+    case 90: return ReadoutDirection::Left;
+    case 180: return ReadoutDirection::Up;
+    case 270: return ReadoutDirection::Right;
+    default: return ReadoutDirection::Down;
+  }
+}
+
+double ImageInfo::readoutOffset(const Eigen::Vector2d& px) const {
+  const bool rows = readout_direction == ReadoutDirection::Down || readout_direction == ReadoutDirection::Up;
+  const double extent = rows ? height : width;
+  if (extent <= 0) return 0.0;
+  const double s = ((rows ? px.y() : px.x()) - (extent - 1.0) / 2.0) / extent;
+  return readout_direction == ReadoutDirection::Down || readout_direction == ReadoutDirection::Right ? s : -s;
+}
+
 Eigen::Vector2d rollingShutterShift(const Tracks& t, int k, const TrackPoint& p) {
-  if (t.image.height <= 0) return Eigen::Vector2d::Zero();
+  if (t.image.height <= 0 || t.image.width <= 0) return Eigen::Vector2d::Zero();
   const TrackPoint* a = t.find(k - 1, p.id);
   const TrackPoint* b = t.find(k + 1, p.id);
   const TrackPoint& lo = a ? *a : p;
   const TrackPoint& hi = b ? *b : p;
   const int dk = t.frameNumber(b ? k + 1 : k) - t.frameNumber(a ? k - 1 : k);
   if (dk <= 0) return Eigen::Vector2d::Zero();  // seen in this frame only: no velocity
-  const double h = t.image.height, mid = (h - 1.0) / 2.0;
-  return (p.px.y() - mid) / h * (hi.px - lo.px) / dk;
+  return t.image.readoutOffset(p.px) * (hi.px - lo.px) / dk;
 }
 
 Tracks correctRollingShutter(const Tracks& t, double readout) {
   Tracks out = t;
-  if (readout == 0.0 || t.image.height <= 0) return out;
+  if (readout == 0.0 || t.image.height <= 0 || t.image.width <= 0) return out;
   for (int k = 0; k < t.numFrames(); ++k)
     for (std::size_t i = 0; i < t.frames[k].size(); ++i)
       out.frames[k][i].px -= readout * rollingShutterShift(t, k, t.frames[k][i]);

@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <opencv2/imgcodecs.hpp>
@@ -98,6 +99,11 @@ FrameSource::FrameSource(const std::string& input) : input_(input) {
     fps_ = fps;
     fps_known_ = true;
   }
+  if (cap_->get(cv::CAP_PROP_ORIENTATION_AUTO) != 0) {
+    const double meta = cap_->get(cv::CAP_PROP_ORIENTATION_META);
+    const int deg = std::isfinite(meta) ? ((static_cast<int>(std::lround(meta)) % 360) + 360) % 360 : 0;
+    if (deg == 90 || deg == 180 || deg == 270) rotation_ = deg;
+  }
 }
 
 FrameSource::~FrameSource() = default;
@@ -159,7 +165,7 @@ cv::Mat toGray8(const cv::Mat& frame) {
   return toGray8(frame, &buffer);
 }
 
-double forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,
+SourceInfo forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,
                   const std::function<void(int, int)>& progress, const MinFrameSize& min_size) {
   FrameSource src(input);
   cv::Mat img;
@@ -188,7 +194,7 @@ double forEachFrame(const std::string& input, FrameRange range, const std::funct
   if (range.last >= 0 && src.index() < range.last && used < range.last - range.first + 1)
     throw io::InputError(fmt::format("{}: the frame range ends at {} but the input has only {} frames", input, range.last,
                                      src.index() + 1));
-  return src.fpsKnown() ? src.fps() : 0.0;
+  return {src.fpsKnown() ? src.fps() : 0.0, src.rotation()};
 }
 
 }  // namespace rsfm::vision

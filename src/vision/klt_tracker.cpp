@@ -425,7 +425,7 @@ Tracks trackInput(const std::string& input, const TrackerOptions& options, Frame
   // The smallest frame the tracker works in: a window and the anchoring template inside the
   // border on both sides.
   const int need = 2 * (options.border_px + std::max(options.window_px, 2 * options.affine.radius + 1));
-  const double fps = forEachFrame(
+  const SourceInfo source = forEachFrame(
       input, range, [&](const cv::Mat& img) { tracker.process(img); }, progress,
       {need, fmt::format("tracking with a {} px window, {} px template radius and {} px border needs", options.window_px,
                          options.affine.radius, options.border_px)});
@@ -435,7 +435,8 @@ Tracks trackInput(const std::string& input, const TrackerOptions& options, Frame
   // every frame until corners appear): the tracks start at the first frame that has some.
   trimLeadingEmptyFrames(&t);
   t.source = input;
-  t.image.fps = fps;
+  t.image.fps = source.fps;
+  t.image.readout_direction = readoutDirectionAfterRotation(source.rotation);
   return t;
 }
 

@@ -130,13 +130,14 @@ PatchTracks trackPatchesInput(const std::string& input, const PatchTrackerOption
   PatchTracker tracker(options);
   // The smallest frame the tracker works in: two patches and the prediction window side by side.
   const int need = 2 * (2 * options.affine.radius + 1) + options.window_px;
-  const double fps = forEachFrame(
+  const SourceInfo source = forEachFrame(
       input, range, [&](const cv::Mat& img) { tracker.process(img); }, progress,
       {need, fmt::format("patches of radius {} px with a {} px window need", options.affine.radius, options.window_px)});
   PatchTracks t = tracker.tracks(range.first);
   trimLeadingEmptyFrames(&t);  // a fade-in: the patches start at the first frame with one
   t.source = input;
-  t.image.fps = fps;
+  t.image.fps = source.fps;
+  t.image.readout_direction = readoutDirectionAfterRotation(source.rotation);
   return t;
 }
 

@@ -51,6 +51,10 @@ struct EstimateOptions {
   /// At most kMaxRollingShutterReadout either way. Unset (the default): the refinement estimates
   /// it (RefineOptions::estimate_readout).
   std::optional<double> rolling_shutter_readout;
+  /// The way the readout travels across the image (ImageInfo::readout_direction): unset, the
+  /// tracks' own (down, or from a video's rotation metadata, which the decoder applied: a phone
+  /// video held upright reads its rows along the image's columns).
+  std::optional<ReadoutDirection> readout_direction;
   /// A known principal point (px): the tracks' image's is replaced by it and held.
   std::optional<Eigen::Vector2d> principal_point;
   /// The still start (issue 14 item 1, vision/still_start.hpp, docs/estimate.md section 0):

@@ -11,6 +11,20 @@
 
 namespace rsfm {
 
+/// The way a rolling shutter's readout travels across the image (docs/estimate.md section 6): a
+/// sensor reads its rows top to bottom (`Down`), but a video whose container asks for a rotation
+/// (a phone held upright: 90 or 270 degrees) is decoded turned, so the sensor's rows are the
+/// image's columns. Names: "down", "up", "right" (the left column first), "left".
+enum class ReadoutDirection { Down, Up, Right, Left };
+/// The name of `d` ("down", ...).
+const char* readoutDirectionName(ReadoutDirection d);
+/// The direction named `name`; false when it is none of the four.
+bool parseReadoutDirection(const std::string& name, ReadoutDirection* d);
+/// The direction of a sensor's rows after the decoder turned the frames clockwise by `degrees`
+/// (0, 90, 180, 270; a video's rotation metadata, which OpenCV applies): 90 puts the first row
+/// in the right column, so the readout goes left. Other angles: Down.
+ReadoutDirection readoutDirectionAfterRotation(int degrees);
+
 /// Image size and principal point (pixels), and the source's frame rate.
 struct ImageInfo {
   int width = 0;
@@ -20,10 +34,16 @@ struct ImageInfo {
   /// Frames per second of the source (a video's rate; tracks.csv's '# fps'); 0 when unknown (an
   /// image sequence, a tracks file without the key). Timestamps: docs/outputs.md.
   double fps = 0.0;
+  /// The rolling shutter's readout direction in this image (tracks.csv's '# readout_direction';
+  /// absent: Down). The tracker sets it from a video's rotation.
+  ReadoutDirection readout_direction = ReadoutDirection::Down;
   /// The largest frame rate rsfm takes from a video or a file (frames per second).
   static constexpr double kMaxFps = 1000.0;
   /// A width x height image with the default principal point, the image centre.
   static ImageInfo centred(int width, int height) { return {width, height, (width - 1) / 2.0, (height - 1) / 2.0}; }
+  /// Where the readout reaches the point `px`: its offset along readout_direction from the
+  /// readout's middle, over the image's extent that way, in [-1/2, 1/2) (0 without a size).
+  double readoutOffset(const Eigen::Vector2d& px) const;
   /// The timestamp of frame `frame` (frame numbers of the input, the first frame 0): seconds,
   /// frame / fps, when the frame rate is known, else the frame number itself.
   double timestamp(int frame) const { return fps > 0 ? frame / fps : static_cast<double>(frame); }
@@ -89,14 +109,15 @@ inline constexpr double kMaxRollingShutterReadout = 2.0;
 /// A rolling shutter's first-order correction (docs/estimate.md section 6, "A rolling shutter"):
 /// a sensor that reads its rows one after another over `readout` frame intervals (0: a global
 /// shutter; the middle row at the frame's time) sees a point moving at v px/frame at
-/// x_gs + readout (y - (height - 1) / 2) / height v. Each observation is moved back by that, v its
+/// x_gs + readout s v, s = ImageInfo::readoutOffset (with the readout down the image,
+/// (y - (height - 1) / 2) / height). Each observation is moved back by that, v its
 /// own track's velocity by central differences over the neighbouring frames (one-sided at a
 /// track's ends; a track seen in one frame is left as it is), in the tracks' pixel frame (before
 /// any undistortion: the row is the sensor's). Frame numbers, ids and the image are unchanged.
 Tracks correctRollingShutter(const Tracks& t, double readout);
 
 /// What a rolling shutter adds to the observation `p` of frame k per frame interval of readout:
-/// (y - (height - 1) / 2) / height v, pixels, v its track's velocity as correctRollingShutter's
+/// s v (s = ImageInfo::readoutOffset), pixels, v its track's velocity as correctRollingShutter's
 /// (zero for a track seen in one frame or an image without a height). The refinement's readout
 /// parameter moves each prediction by readout times this (docs/estimate.md section 6).
 Eigen::Vector2d rollingShutterShift(const Tracks& t, int k, const TrackPoint& p);

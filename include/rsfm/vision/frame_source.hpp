@@ -38,6 +38,10 @@ class FrameSource {
   /// Whether fps() is the source's own rate (a video that states it), not the default.
   bool fpsKnown() const { return fps_known_; }
   const std::string& description() const { return input_; }
+  /// Degrees clockwise (0, 90, 180, 270) by which the decoder turned the frames: a video's
+  /// rotation metadata, which OpenCV's FFmpeg reader applies (CAP_PROP_ORIENTATION_META with
+  /// CAP_PROP_ORIENTATION_AUTO); 0 for images.
+  int rotation() const { return rotation_; }
 
  private:
   enum class Kind { Video, Pattern, Folder } kind_ = Kind::Video;
@@ -48,6 +52,7 @@ class FrameSource {
   int count_ = -1;
   double fps_ = 30.0;
   bool fps_known_ = false;
+  int rotation_ = 0;
   cv::Size size_;
 };
 
@@ -65,11 +70,16 @@ struct MinFrameSize {
   std::string who;
 };
 
+/// What forEachFrame learnt of its source.
+struct SourceInfo {
+  double fps = 0.0;  ///< the source's frame rate when it states one (FrameSource::fpsKnown), else 0
+  int rotation = 0;  ///< FrameSource::rotation
+};
+
 /// Calls `fn` on every frame of `input` in `range`, in order; `progress(done, total)` after each
 /// (total = -1 when unknown). Throws io::InputError on bad input, frames smaller than `min_size`,
 /// a range that starts after the end or ends after it, or fewer than 2 frames.
-/// Returns the source's frame rate when it states one (FrameSource::fpsKnown), else 0.
-double forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,
+SourceInfo forEachFrame(const std::string& input, FrameRange range, const std::function<void(const cv::Mat&)>& fn,
                   const std::function<void(int, int)>& progress = {}, const MinFrameSize& min_size = {});
 
 }  // namespace rsfm::vision
