@@ -307,8 +307,8 @@ std::string cameraYamlOf(const EstimateResult& r, const EstimateOptions& o, cons
                                    f.readout, f.readout_sd));
     }
   };
-  if (o.camera) {
-    const vision::CameraCalibration& c = *o.camera;
+  if (r.camera) {
+    const vision::CameraCalibration& c = *r.camera;  // turned to the tracks' frames if their video was
     std::vector<std::string> extra{fmt::format("source: \"{} (given)\"", c.source)};
     if (c.distortion.size() > 2) {
       std::string all;
@@ -431,8 +431,8 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
   rep.labels = &r.labels();
   rep.result = &r.online;
   rep.refined = &r.refined;
-  if (e.est.camera) {
-    const vision::CameraCalibration& c = *e.est.camera;
+  if (r.camera) {
+    const vision::CameraCalibration& c = *r.camera;
     given = report::GivenCamera{c.focal(), c.cx, c.cy, c.distortion, c.source};
     rep.given_camera = &*given;
   }

@@ -7,6 +7,8 @@
 #include <fstream>
 #include <sstream>
 
+#include <opencv2/calib3d.hpp>
+
 #include "rsfm/io/camera_yaml.hpp"
 #include "rsfm/io/input_error.hpp"
 #include "rsfm/vision/camera_file.hpp"
@@ -72,4 +74,65 @@ TEST(CameraFile, RefusesWhatOpenCvsParserCannotSurvive) {
       EXPECT_NE(std::string(e.what()).find(name), std::string::npos) << e.what();
     }
   }
+}
+
+TEST(CameraFile, TurnsWithAVideosRotation) {
+  // A camera calibrated on its 640 x 480 frames, then a video of it with 90/180/270-degree
+  // rotation metadata (OpenCV's reader turns the frames clockwise; 90: (x, y) -> (h - 1 - y, x)).
+  // The turned calibration must project every point where the turned frame shows it: the points
+  // projected with the original (tangential terms and unequal focal lengths included) and turned
+  // as pixels, against the same points turned with the camera and projected with the turned one.
+  rsfm::vision::CameraCalibration cal;
+  cal.width = 640;
+  cal.height = 480;
+  cal.fx = 600;
+  cal.fy = 610;
+  cal.cx = 331.5;
+  cal.cy = 228.25;
+  cal.distortion = {-0.2, 0.05, 0.003, -0.002, 0.01};
+  cal.source = "cal.yaml";
+  auto project = [](const rsfm::vision::CameraCalibration& c, const std::vector<cv::Point3d>& X) {
+    std::vector<cv::Point2d> out;
+    cv::projectPoints(X, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), cv::Matx33d(c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1),
+                      c.distortion, out);
+    return out;
+  };
+  std::vector<cv::Point3d> X;
+  for (double x = -0.5; x <= 0.5; x += 0.25)
+    for (double y = -0.35; y <= 0.35; y += 0.175) X.emplace_back(x, y, 1.0);
+  const std::vector<cv::Point2d> seen = project(cal, X);
+  for (const int deg : {90, 180, 270}) {
+    const rsfm::vision::CameraCalibration t = rsfm::vision::rotateCalibration(cal, deg);
+    EXPECT_EQ(t.width, deg == 180 ? 640 : 480);
+    std::vector<cv::Point3d> Xt = X;  // the scene turned with the image: 90 cw, (x, y) -> (-y, x)
+    std::vector<cv::Point2d> expect = seen;
+    for (int q = 0; q < deg / 90; ++q)
+      for (std::size_t i = 0; i < X.size(); ++i) {
+        Xt[i] = cv::Point3d(-Xt[i].y, Xt[i].x, Xt[i].z);
+        const int h = q % 2 == 0 ? cal.height : cal.width;  // the height of the frame being turned
+        expect[i] = cv::Point2d(h - 1 - expect[i].y, expect[i].x);
+      }
+    const std::vector<cv::Point2d> got = project(t, Xt);
+    double worst = 0;
+    for (std::size_t i = 0; i < X.size(); ++i) worst = std::max(worst, cv::norm(got[i] - expect[i]));
+    EXPECT_LT(worst, 1e-9) << deg << " degrees";
+  }
+  // The tracks' frames say which way: 480 x 640 tracks going left take the 90-degree turn;
+  // tracks on their side that do not say are refused, naming the file and both sizes.
+  rsfm::ImageInfo portrait = rsfm::ImageInfo::centred(480, 640);
+  portrait.readout_direction = rsfm::ReadoutDirection::Left;
+  EXPECT_EQ(rsfm::vision::calibrationForTracks(cal, portrait).cx, 480 - 1 - cal.cy);
+  portrait.readout_direction = rsfm::ReadoutDirection::Down;
+  try {
+    rsfm::vision::calibrationForTracks(cal, portrait);
+    ADD_FAILURE() << "tracks on their side taken without a direction";
+  } catch (const rsfm::io::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("cal.yaml: the calibration is for 640x480 images, the tracks are 480x640"),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_EQ(rsfm::vision::calibrationForTracks(cal, rsfm::ImageInfo::centred(640, 480)).cx, cal.cx);
+  cal.distortion.resize(12, 0.0);
+  cal.distortion[9] = 1e-3;  // a thin-prism term
+  EXPECT_THROW(rsfm::vision::rotateCalibration(cal, 90), rsfm::io::InputError);
 }

@@ -69,6 +69,12 @@ if command -v ffmpeg >/dev/null; then
     grep -q '"rolling_shutter_readout_direction": "left"' "$TMP/rotrun/summary.json" ||
       { echo "FAIL summary.json of a 90-degree rotated video does not record the readout going left"; exit 1; }
     echo "a video with 90-degree rotation metadata: frames ${h}x${w}, readout_direction left in tracks.csv and summary.json"
+    # The level video's camera.yaml serves the turned one, turned with it.
+    "$RSFM" estimate --tracks "$TMP/rotrun/tracks.csv" --camera "$TMP/e/camera.yaml" --out "$TMP/rotcam" --quiet --no-plots ||
+      { echo "FAIL the level video's camera.yaml on the turned video's tracks"; exit 1; }
+    grep -q "turned 90 degrees clockwise" "$TMP/rotcam/camera.yaml" && grep -qx "image_width: $h" "$TMP/rotcam/camera.yaml" ||
+      { echo "FAIL the camera.yaml given to the turned video was not turned"; exit 1; }
+    echo "the level video's camera.yaml on the turned video: turned 90 degrees clockwise (${h}x${w})"
   else
     echo "rotation metadata: this ffmpeg did not write it, not checked"
   fi

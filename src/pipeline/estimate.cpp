@@ -298,14 +298,15 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
   const Tracks* t = raw;
   if (o.camera) {
     if (o.filter.focal_px > 0) throw std::invalid_argument("a calibrated camera and a known focal length exclude each other");
-    undistorted = vision::undistortTracks(*raw, *o.camera);
+    r.camera = vision::calibrationForTracks(*o.camera, input.image);
+    const vision::CameraCalibration& cam = *r.camera;
+    undistorted = vision::undistortTracks(*raw, cam);
     t = &undistorted;
-    known.filter.focal_px = o.camera->focal();
+    known.filter.focal_px = cam.focal();
     known.refine.estimate_principal_point = false;
     known.refine.estimate_distortion = false;
-    say(fmt::format("camera: {} ({}x{}, f {:.1f} px, principal point ({:.1f}, {:.1f}){})", o.camera->source, o.camera->width,
-                    o.camera->height, o.camera->focal(), o.camera->cx, o.camera->cy,
-                    o.camera->distorted() ? ", tracks undistorted" : ""));
+    say(fmt::format("camera: {} ({}x{}, f {:.1f} px, principal point ({:.1f}, {:.1f}){})", cam.source, cam.width, cam.height,
+                    cam.focal(), cam.cx, cam.cy, cam.distorted() ? ", tracks undistorted" : ""));
   }
   if (o.principal_point) {
     const Eigen::Vector2d& pp = *o.principal_point;

@@ -282,6 +282,50 @@ CameraCalibration fromStorage(const cv::FileStorage& fs, const std::filesystem::
 
 }  // namespace
 
+CameraCalibration rotateCalibration(const CameraCalibration& cal, int degrees) {
+  const int d = ((degrees % 360) + 360) % 360;
+  if (d == 0) return cal;
+  if (d != 90 && d != 180 && d != 270)
+    throw io::InputError(fmt::format("{}: a calibration turns by 90, 180 or 270 degrees, not {}", cal.source, degrees));
+  for (std::size_t i = 8; i < cal.distortion.size(); ++i)
+    if (cal.distortion[i] != 0.0)
+      throw io::InputError(fmt::format("{}: its thin-prism or tilt distortion terms cannot be turned to the video's rotation; "
+                                       "calibrate with the frames as the video is decoded",
+                                       cal.source));
+  CameraCalibration c = cal;
+  double p1 = cal.distortion.size() > 2 ? cal.distortion[2] : 0.0, p2 = cal.distortion.size() > 3 ? cal.distortion[3] : 0.0;
+  // In normalized coordinates 90 degrees clockwise (y down) is (x, y) -> (-y, x); the tangential
+  // term D(x) turns as R D(R^-1 x'), which is Brown's form again with (p1, p2) -> (p2, -p1).
+  for (int q = 0; q < d / 90; ++q) {
+    const CameraCalibration b = c;
+    c.width = b.height;
+    c.height = b.width;
+    c.fx = b.fy;
+    c.fy = b.fx;
+    c.cx = b.height - 1 - b.cy;
+    c.cy = b.cx;
+    const double t = p1;
+    p1 = p2;
+    p2 = 0.0 - t;  // not -0.0 when t is 0
+  }
+  if (c.distortion.size() > 2) c.distortion[2] = p1;
+  if (c.distortion.size() > 3) c.distortion[3] = p2;
+  c.source = fmt::format("{} (turned {} degrees clockwise, as the video)", cal.source, d);
+  return c;
+}
+
+CameraCalibration calibrationForTracks(const CameraCalibration& cal, const ImageInfo& image) {
+  if (image.width == cal.width && image.height == cal.height) return cal;
+  const bool turned = image.width == cal.height && image.height == cal.width;
+  if (turned && image.readout_direction == ReadoutDirection::Left) return rotateCalibration(cal, 90);
+  if (turned && image.readout_direction == ReadoutDirection::Right) return rotateCalibration(cal, 270);
+  throw io::InputError(fmt::format("{}: the calibration is for {}x{} images, the tracks are {}x{}{}", cal.source, cal.width,
+                                   cal.height, image.width, image.height,
+                                   turned ? " (on their side, but the tracks do not say which way the video was turned: "
+                                            "their readout_direction is neither left nor right)"
+                                          : ""));
+}
+
 Tracks undistortTracks(const Tracks& tracks, const CameraCalibration& cal) {
   if (tracks.image.width != cal.width || tracks.image.height != cal.height)
     throw io::InputError(fmt::format("{}: the calibration is for {}x{} images, the tracks are {}x{}", cal.source, cal.width,

@@ -97,6 +97,9 @@ struct EstimateResult {
   bool start_tried = false;
   TrackFilterOptions filter_used;   ///< the filter's options after the start (and a known camera)
   ImageInfo image;                  ///< the image geometry used (a known principal point)
+  /// The calibration used (EstimateOptions::camera; turned to the tracks' frames when their video
+  /// was turned: vision::calibrationForTracks).
+  std::optional<vision::CameraCalibration> camera;
   TrackFilterResult online;         ///< the recursive filter's per-frame estimates (online.ok(): every frame)
   RefineResult refined;             ///< the refinement (refined.ok: the main result; else the online one stands)
   /// Wall-clock seconds of each stage (steady clock; summary.json's `stage_seconds`).

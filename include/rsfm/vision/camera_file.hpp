@@ -43,5 +43,17 @@ inline constexpr std::size_t kMaxCameraFileBytes = 1u << 20;
 /// io::InputError naming the file when the tracks' image size differs from the calibration's.
 Tracks undistortTracks(const Tracks& tracks, const CameraCalibration& cal);
 
+/// `cal` for the same camera's frames turned clockwise by `degrees` (90, 180, 270), as OpenCV's
+/// reader turns a video with rotation metadata: the size, focal lengths and principal point
+/// follow the pixels ((x, y) -> (h - 1 - y, x) for 90), the radial terms stay, the tangential
+/// ones turn with the image ((p1, p2) -> (p2, -p1) for 90). Throws io::InputError naming the file
+/// for thin-prism or tilt terms (OpenCV's coefficients 9-14), which are not turned here.
+CameraCalibration rotateCalibration(const CameraCalibration& cal, int degrees);
+/// The calibration that applies to tracks of `image`: `cal` when the sizes agree; turned by
+/// rotateCalibration when the tracks' frames are its frames on their side and the tracks say
+/// which way (readout_direction left: 90 degrees, right: 270; a phone video calibrated held
+/// level and filmed upright). Otherwise io::InputError naming the file and both sizes.
+CameraCalibration calibrationForTracks(const CameraCalibration& cal, const ImageInfo& image);
+
 
 }  // namespace rsfm::vision
