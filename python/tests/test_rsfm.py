@@ -129,6 +129,11 @@ def test_options_take_effect(scene):
     given = rsfm.estimate(rows, image_size=(W, H), rolling_shutter_readout=0.0, quiet=True)["summary"]
     assert not given["camera"]["readout_estimated"] and given["camera"]["readout"] is None
     assert given["rolling_shutter_readout"] == 0.0
+    # Its direction across the image: down unless the tracks' video was turned, or given.
+    assert estimated["rolling_shutter_readout_direction"] == "down"
+    left = rsfm.estimate(rows, image_size=(W, H), readout_direction="left", quiet=True)["summary"]
+    assert left["rolling_shutter_readout_direction"] == "left"
+    assert abs(left["camera"]["readout"]) < 3 * left["camera"]["readout_sd"]
 
 
 def test_errors_are_the_cli_messages(scene, tracks_file):
