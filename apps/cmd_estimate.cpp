@@ -542,7 +542,7 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
                      : "");
     else
       fmt::print(stderr, "estimate: {} frames, focal {:.1f} {}", res.frames.size(), s["focal_px"].get<double>(),
-                 s.contains("focal_given") ? fmt::format("px (given: {})", e.est.camera ? e.est.camera->source : "--focal-px")
+                 s.contains("focal_given") ? fmt::format("px (given: {})", r.camera ? r.camera->source : "--focal-px")
                                            : fmt::format("+- {:.1f} px{}", s["focal_sd_px"].get<double>(),
                                                          r.refined.ok ? " (refined)" : ""));
     for (const auto& a : s["angles_between_planes_deg"])

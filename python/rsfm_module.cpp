@@ -324,6 +324,7 @@ py::dict runPy(const std::string& video, const py::kwargs& kw) {
   py::dict d = resultDict(t, r, e);
   d["tracks"] = trackRows(t);
   d["image_size"] = py::make_tuple(t.image.width, t.image.height);
+  d["readout_direction"] = readoutDirectionName(t.image.readout_direction);
   return d;
 }
 
@@ -502,7 +503,9 @@ nz in the first camera frame, normal sd in deg; NaN sd when the structure is not
 frames/img%04d.png, or a folder of images), then estimate() on the tracks.
 
 **options: those of `rsfm run` (tracker and estimate options; rsfm.options("run")).
-Returns estimate()'s dict plus "tracks" ((M, 4) rows frame, track, x, y) and "image_size"; with
+Returns estimate()'s dict plus "tracks" ((M, 4) rows frame, track, x, y), "image_size" and
+"readout_direction" (the rolling shutter's across the image: "left" for a video turned 90 degrees
+by its rotation metadata; give it back as readout_direction= with the rows); with
 model="patches", estimate_patches()'s dict plus "image_size".)doc");
   m.def("options", &optionsPy, py::arg("command") = "estimate",
         "The options of estimate() ('estimate') or run() ('run'): {name: (default, help)}.");

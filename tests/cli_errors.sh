@@ -187,10 +187,17 @@ check "estimate: principal point outside the image" 2 "$E" -- estimate --tracks 
 check "estimate: principal point not a pair" 2 "$E" -- estimate --tracks "$CT" --out "$E" --principal-point 300
 check "estimate: rolling shutter readout out of range" 2 "$E" -- estimate --tracks "$CT" --out "$E" --rolling-shutter-readout 3
 check "estimate: rolling shutter readout with the patch model" 2 "$E" -- estimate --tracks "$CT" --out "$E" --model patches --rolling-shutter-readout 1
+says() {  # says TEXT: the last check's one line names the problem
+  if grep -qF -- "$1" "$TMP/err.txt"; then pass=$((pass + 1)); else
+    fail=$((fail + 1)); echo "FAIL the message does not say '$1': $(cat "$TMP/err.txt")"; fi
+}
 check "estimate: readout direction not a direction" 2 "$E" -- estimate --tracks "$CT" --out "$E" --readout-direction sideways
+says "--readout-direction: sideways not in {down,up,right,left}"
 check "estimate: readout direction with the patch model" 2 "$E" -- estimate --tracks "$CT" --out "$E" --model patches --readout-direction left
+says "--readout-direction applies to the point and plane models"
 { printf '# rsfm-tracks 1\n# image_size 640 480\n# readout_direction diagonal\n# frames 0 1\nframe,track,x,y\n0,0,1,1\n1,0,2,1\n'; } >"$TMP/rd.csv"
 check "estimate: tracks file with a bad readout direction" 2 "$E" -- estimate --tracks "$TMP/rd.csv" --out "$E"
+says "rd.csv:3: readout_direction needs one of down, up, right, left"
 { cat "$TMP/good.yaml"; echo "rolling_shutter_readout: 0.9"; } >"$TMP/rs.yaml"
 check "estimate: readout given and in the camera file, different" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/rs.yaml" --rolling-shutter-readout 0.5
 check "estimate: camera file's readout with the patch model" 2 "$E" -- estimate --tracks "$CT" --out "$E" --camera "$TMP/rs.yaml" --model patches

@@ -209,7 +209,7 @@ def test_run_tracks_a_video(tmp_path):
     video = tmp_path / "box.mp4"
     video.write_bytes(gzip.decompress(BOX_GZ.read_bytes()))
     r = rsfm.run(str(video), first=1, last=60, quiet=True)
-    assert r["image_size"] == (640, 480)
+    assert r["image_size"] == (640, 480) and r["readout_direction"] == "down"
     assert r["tracks"].shape[1] == 4 and len(r["tracks"]) > 1000
     assert r["trajectory"].shape[0] == 60
     # Timestamps in seconds at the video's frame rate (box.mp4: ~29.97 fps), frames 1..60.

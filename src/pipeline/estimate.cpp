@@ -300,6 +300,11 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
     if (o.filter.focal_px > 0) throw std::invalid_argument("a calibrated camera and a known focal length exclude each other");
     r.camera = vision::calibrationForTracks(*o.camera, input.image);
     const vision::CameraCalibration& cam = *r.camera;
+    if (input.image.readout_direction != ReadoutDirection::Down && cam.width == o.camera->width &&
+        cam.height == o.camera->height && cam.cx == o.camera->cx)
+      say(fmt::format("camera: the tracks' video was turned (readout {}) and the calibration's size is theirs, so it is "
+                      "taken as made on the frames as decoded (a 180-degree turn cannot be told from the size)",
+                      readoutDirectionName(input.image.readout_direction)));
     undistorted = vision::undistortTracks(*raw, cam);
     t = &undistorted;
     known.filter.focal_px = cam.focal();

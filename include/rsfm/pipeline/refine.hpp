@@ -151,7 +151,7 @@ struct RefineResult {
   /// than half: the plane is reported not determined, its tracks were not one surface).
   std::vector<int> plane_tracks, plane_relabelled;
   int tracks = 0, observations = 0;
-  int null_dim = 0;           ///< of the information matrix
+  int null_dim = 0;           ///< of the information matrix, weak directions included (PlaneBatchBound::null_dim)
   std::vector<int> undetermined_frames;  ///< frames whose pose the observations do not determine
   /// Likelihood ratio of the plane model against pure rotation about the centre of projection
   /// (the same camera), in units of the inflated noise variance, and whether it is significant
