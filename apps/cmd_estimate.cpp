@@ -185,11 +185,13 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
                 "a rolling shutter's known readout time in frame intervals (0: a global shutter): the tracks are moved "
                 "to a global shutter's positions with their own velocities first and the refinement does not "
                 "estimate it (default: estimated; docs/estimate.md section 6)");
+  std::vector<std::string> directions;
+  for (ReadoutDirection d : kReadoutDirections) directions.emplace_back(readoutDirectionName(d));
   a->add_option("--readout-direction", e->readout_direction,
                 "down | up | right | left: the way the rolling shutter's readout travels across the image (default: "
                 "the tracks' own, down unless the video's rotation metadata turned the frames; docs/estimate.md "
                 "section 6)")
-      ->check(CLI::IsMember({"down", "up", "right", "left"}));
+      ->check(CLI::IsMember(directions));
   a->add_option("--refine", e->refine,
                 "final | none (final: a bundle adjustment of the plane model over every frame after the filter, also for the point model's run; docs/estimate.md section 4)")
       ->capture_default_str();

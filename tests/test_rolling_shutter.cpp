@@ -184,7 +184,9 @@ TEST(RollingShutter, TheReadoutKnownOrEstimatedTakesTheShuttersErrorOutOfTheEsti
     // The edge-on third plane's weak direction (below) does not take the rest with it.
     EXPECT_TRUE(e.refined.focal_determined);
     EXPECT_TRUE(e.refined.camera_determined[0] && e.refined.camera_determined[1]);
-    if (!readout) EXPECT_TRUE(e.refined.readout_determined);
+    if (!readout) {
+      EXPECT_TRUE(e.refined.readout_determined);
+    }
     return std::make_tuple(static_cast<int>(last.N.size()), std::abs(focal_err), angle_err, e.refined.sigma_px,
                            e.refined.readout, e.refined.readout_sd);
   };

@@ -301,7 +301,7 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
     r.camera = vision::calibrationForTracks(*o.camera, input.image);
     const vision::CameraCalibration& cam = *r.camera;
     if (input.image.readout_direction != ReadoutDirection::Down && cam.width == o.camera->width &&
-        cam.height == o.camera->height && cam.cx == o.camera->cx)
+        cam.height == o.camera->height)  // not turned: calibrationForTracks turns only what changes the size
       say(fmt::format("camera: the tracks' video was turned (readout {}) and the calibration's size is theirs, so it is "
                       "taken as made on the frames as decoded (a 180-degree turn cannot be told from the size)",
                       readoutDirectionName(input.image.readout_direction)));

@@ -51,7 +51,7 @@ const char* readoutDirectionName(ReadoutDirection d) {
 }
 
 bool parseReadoutDirection(const std::string& name, ReadoutDirection* d) {
-  for (ReadoutDirection c : {ReadoutDirection::Down, ReadoutDirection::Up, ReadoutDirection::Right, ReadoutDirection::Left})
+  for (ReadoutDirection c : kReadoutDirections)
     if (name == readoutDirectionName(c)) {
       *d = c;
       return true;

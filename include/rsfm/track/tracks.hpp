@@ -16,6 +16,8 @@ namespace rsfm {
 /// (a phone held upright: 90 or 270 degrees) is decoded turned, so the sensor's rows are the
 /// image's columns. Names: "down", "up", "right" (the left column first), "left".
 enum class ReadoutDirection { Down, Up, Right, Left };
+inline constexpr ReadoutDirection kReadoutDirections[] = {ReadoutDirection::Down, ReadoutDirection::Up,
+                                                          ReadoutDirection::Right, ReadoutDirection::Left};
 /// The name of `d` ("down", ...).
 const char* readoutDirectionName(ReadoutDirection d);
 /// The direction named `name`; false when it is none of the four.
