@@ -30,7 +30,7 @@ experiments: build
 	./$(BUILD)/rsfm experiment two-object --out $(OUT)/two-object
 	./$(BUILD)/rsfm experiment patches --out $(OUT)/patches
 
-# The regime suite's scoreboard (issue 12; docs/regimes.md): 34 rendered sequences and the real
+# The regime suite's scoreboard (issue 12; docs/regimes.md): 35 rendered sequences and the real
 # rows with default options, into $(OUT)/regimes (renderings cached in ~/.cache/rsfm/regimes).
 regimes: build
 	./$(BUILD)/rsfm bench regimes --out $(OUT)/regimes

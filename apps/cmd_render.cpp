@@ -86,6 +86,9 @@ void addSceneOptions(CLI::App* c, SceneCli* st) {
   c->add_option("--noise", st->o.noise_sigma, "sensor noise standard deviation (8-bit grey levels)")->capture_default_str();
   c->add_option("--blur", st->o.blur, "motion blur: exposure as a fraction of the frame interval [0, 1]")
       ->capture_default_str();
+  c->add_option("--readout", st->o.readout,
+                "rolling shutter: first row to last row, as a fraction of the frame interval [0, 1] (0: global shutter)")
+      ->capture_default_str();
   c->add_option("--jpeg-quality", st->o.jpeg_quality, "JPEG-compress every frame at this quality (1-100; 0: none)")
       ->capture_default_str();
   c->add_option("--texture", st->o.texture,

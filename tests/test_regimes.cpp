@@ -44,6 +44,7 @@ TEST(RegimeSuite, BuiltInSuiteParsesAndCoversEveryAxis) {
     if (o.width == 1280 && o.height == 720) have.insert("1280x720");
     if (o.noise_sigma >= 5) have.insert("noise");
     if (o.blur > 0) have.insert("blur");
+    if (o.readout > 0) have.insert("rolling-shutter");
     if (o.jpeg_quality > 0 && o.jpeg_quality <= 20) have.insert("compression");
     if (o.jitter_deg > 0 && o.blur > 0 && o.jpeg_quality > 0) have.insert("combination");
     EXPECT_FALSE(r.why.empty()) << r.name;
@@ -53,7 +54,7 @@ TEST(RegimeSuite, BuiltInSuiteParsesAndCoversEveryAxis) {
        {"scene:box", "scene:corner", "scene:poster", "scene:object", "scene:lowtex", "motion:orbit", "motion:translate",
         "motion:rotate", "motion:forward", "motion:none", "speed<=0.1", "speed>=5", "short-fast", "still-start",
         "still-middle", "jitter", "focal<=300", "focal>=4000", "principal-point", "k1<=-0.25", "k1>=0.1", "k2",
-        "384x288", "1280x720", "noise", "blur", "compression", "combination"})
+        "384x288", "1280x720", "noise", "blur", "rolling-shutter", "compression", "combination"})
     EXPECT_TRUE(have.count(axis)) << "no sequence covers " << axis;
 }
 

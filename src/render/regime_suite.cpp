@@ -92,6 +92,8 @@ RenderOptions optionsFromJson(const std::string& text) {
       o.noise_sigma = num(v, k);
     } else if (k == "blur") {
       o.blur = num(v, k);
+    } else if (k == "readout") {
+      o.readout = num(v, k);
     } else if (k == "jpeg_quality") {
       o.jpeg_quality = integer(v, k);
     } else if (k == "texture") {

@@ -305,6 +305,8 @@ std::string validate(const RenderOptions& o) {
     return fmt::format("--noise must be in [0, 50] grey levels, got {}", o.noise_sigma);
   if (!std::isfinite(o.blur) || o.blur < 0 || o.blur > 1)
     return fmt::format("--blur must be in [0, 1] (exposure / frame interval), got {}", o.blur);
+  if (!std::isfinite(o.readout) || o.readout < 0 || o.readout > 1)
+    return fmt::format("--readout must be in [0, 1] (the rolling shutter's readout / frame interval), got {}", o.readout);
   if (o.jpeg_quality < 0 || o.jpeg_quality > 100)
     return fmt::format("--jpeg-quality must be in [0, 100] (0: none), got {}", o.jpeg_quality);
   if (!std::isfinite(o.fps) || o.fps <= 0 || o.fps > 240) return fmt::format("--fps must be in (0, 240], got {}", o.fps);
@@ -340,6 +342,9 @@ std::string optionsToJson(const RenderOptions& o) {
   j["jitter_deg"] = o.jitter_deg;
   j["noise"] = o.noise_sigma;
   j["blur"] = o.blur;
+  // Written only for a rolling shutter: the global-shutter sequences' canonical text (and the
+  // regime cache's keys, hashed from it) stay what they were before the option existed.
+  if (o.readout != 0) j["readout"] = o.readout;
   j["jpeg_quality"] = o.jpeg_quality;
   j["texture"] = o.texture;
   j["seed"] = o.seed;
@@ -450,6 +455,67 @@ struct Scene::Impl {
     return out;
   }
 
+  // Rolling shutter (RenderOptions::readout): whether frame k's rows are exposed at different
+  // poses (not a repeated still frame, not without motion).
+  bool shutterMoves(int k) const {
+    return o.readout > 0 && !added_still[k] && o.motion != MotionKind::None && o.movingFrames() > 1;
+  }
+  // Motion time of image row y (px, the distorted image's rows) of frame k: the frame's time
+  // plus readout (y - (H - 1)/2) / H frame intervals, within the motion.
+  double rowTime(int k, double y) const {
+    if (!shutterMoves(k)) return tau[k];
+    const double dt = o.readout * (y - 0.5 * (o.height - 1)) / o.height / (o.movingFrames() - 1);
+    return std::clamp(tau[k] + dt, 0.0, 1.0);
+  }
+  // The moving body's camera pose when row y of frame k is exposed.
+  Pose rowPose(int k, double y) const { return shutterMoves(k) ? poseAt(rowTime(k, y)) : Pose{Rwc[k], C[k]}; }
+  // The largest image displacement (px, undistorted canvas) of a moving face's corner between
+  // motion times t0 and t1.
+  double maxDisplacement(double t0, double t1) const {
+    const Pose a = poseAt(t0), b = poseAt(t1);
+    double disp = 0;
+    for (const Face& f : faces) {
+      if (f.still) continue;
+      const std::array<Vector3d, 4> poly{f.P0, f.P0 + f.Eu, f.P0 + f.Eu + f.Ev, f.P0 + f.Ev};
+      const auto pa = project(poly, a, 1), pb = project(poly, b, 1);
+      if (pa.size() != 4 || pb.size() != 4) continue;
+      for (int i = 0; i < 4; ++i) disp = std::max(disp, std::hypot(pa[i].x - pb[i].x, pa[i].y - pb[i].y));
+    }
+    return disp;
+  }
+  // Bands of rows that frame k is rendered in, each at the pose of its middle row: 1 for a global
+  // shutter, else enough that the image moves at most a quarter pixel from band to band (2 to 64:
+  // a band's rows are at most 1/8 px from where their own time puts them; an eighth-pixel step
+  // measured the same in BoxRender.ARollingShutterExposesEachRowAtItsOwnTime at twice the cost).
+  int shutterBands(int k) const {
+    if (!shutterMoves(k)) return 1;
+    // Points on a 5 x 5 grid of every moving face, where they are in the image: a face's corners
+    // can project far outside it (the floor's), and move far more than anything seen.
+    const Pose a = poseAt(rowTime(k, 0)), b = poseAt(rowTime(k, o.height - 1));
+    const Eigen::Vector2d lo(mx - 0.5, my - 0.5), hi(mx + o.width - 0.5, my + o.height - 0.5);
+    auto pixel = [&](const Pose& cam, const Vector3d& X) -> std::optional<Eigen::Vector2d> {
+      const Vector3d Xc = cam.R.transpose() * (X - cam.C);
+      if (!(Xc.z() > 1e-9)) return std::nullopt;
+      const cv::Matx33d Kk = Kc(1);
+      return Eigen::Vector2d(Kk(0, 0) * Xc.x() / Xc.z() + Kk(0, 2), Kk(1, 1) * Xc.y() / Xc.z() + Kk(1, 2));
+    };
+    double disp = 0;
+    for (const Face& f : faces) {
+      if (f.still) continue;
+      for (int i = 0; i <= 4; ++i)
+        for (int j = 0; j <= 4; ++j) {
+          const Vector3d X = f.P0 + 0.25 * i * f.Eu + 0.25 * j * f.Ev;
+          const auto pa = pixel(a, X), pb = pixel(b, X);
+          if (!pa || !pb) continue;
+          const bool seen = (pa->array() >= lo.array()).all() && (pa->array() <= hi.array()).all();
+          if (seen) disp = std::max(disp, (*pa - *pb).norm());
+        }
+    }
+    return std::clamp(static_cast<int>(std::ceil(4 * disp)) + 1, 2, 64);
+  }
+  // Rows [y0, y1) of band b of `bands`.
+  std::pair<int, int> bandRows(int b, int bands) const { return {b * o.height / bands, (b + 1) * o.height / bands}; }
+
   // Projected polygon (canvas pixels at supersampling ss) of a world polygon seen from `cam`.
   std::vector<cv::Point2d> project(const std::array<Vector3d, 4>& poly, const Pose& cam, int ss) const {
     std::vector<Vector3d> pc;
@@ -498,6 +564,8 @@ struct Scene::Impl {
   void drawFaces(cv::Mat& hi, const Pose& cam, const Pose& still) const;
   // Label image (canvas, ss = 1) of frame poses `cam`/`still`.
   void drawLabels(cv::Mat& labels, const Pose& cam, const Pose& still) const;
+  // The label image (as Scene::labels) of the moving body seen from `cam`.
+  cv::Mat labelsAt(const Pose& cam) const;
 
   void buildFaces(const std::function<void(const std::string&)>& say);
   void buildPath();
@@ -1003,56 +1071,82 @@ io::TumPose Scene::pose(int k) const {
 std::optional<Eigen::Vector2d> Scene::project(const Eigen::Vector3d& X_ref, int k, bool still_body) const {
   const Impl& s = *impl_;
   const Vector3d Xw = s.Rwc[0] * X_ref + s.C[0];
-  const Matrix3d& R = still_body ? s.Rwc[0] : s.Rwc.at(k);
-  const Vector3d& Ck = still_body ? s.C[0] : s.C.at(k);
-  const Vector3d Xc = R.transpose() * (Xw - Ck);
-  if (!(Xc.z() > 1e-9)) return std::nullopt;
-  Eigen::Vector2d x = Xc.head<2>() / Xc.z();
-  const double r2 = x.squaredNorm();
-  x *= 1 + s.o.k1 * r2 + s.o.k2 * r2 * r2;
-  return Eigen::Vector2d(s.o.focal_px * x.x() + s.pp.x(), s.o.focal_px * x.y() + s.pp.y());
+  auto through = [&](const Matrix3d& R, const Vector3d& Ck) -> std::optional<Eigen::Vector2d> {
+    const Vector3d Xc = R.transpose() * (Xw - Ck);
+    if (!(Xc.z() > 1e-9)) return std::nullopt;
+    Eigen::Vector2d x = Xc.head<2>() / Xc.z();
+    const double r2 = x.squaredNorm();
+    x *= 1 + s.o.k1 * r2 + s.o.k2 * r2 * r2;
+    return Eigen::Vector2d(s.o.focal_px * x.x() + s.pp.x(), s.o.focal_px * x.y() + s.pp.y());
+  };
+  if (still_body) return through(s.Rwc[0], s.C[0]);
+  std::optional<Eigen::Vector2d> x = through(s.Rwc.at(k), s.C.at(k));
+  if (!s.shutterMoves(k)) return x;
+  // Rolling shutter: the row the point is seen in is exposed at that row's pose; a fixed point
+  // (it contracts by the readout times the image's vertical motion per frame over its height).
+  for (int it = 0; it < 20 && x; ++it) {
+    const Impl::Pose p = s.rowPose(k, x->y());
+    const std::optional<Eigen::Vector2d> next = through(p.R, p.C);
+    if (!next) return std::nullopt;
+    const bool settled = std::abs(next->y() - x->y()) < 1e-9;
+    x = next;
+    if (settled) break;
+  }
+  return x;
 }
 
 cv::Mat Scene::render(int k, cv::Mat* labels) const {
   const Impl& s = *impl_;
   if (k < 0 || k >= s.o.frames) throw std::out_of_range("Scene::render: frame out of range");
-  const Impl::Pose cam{s.Rwc[k], s.C[k]}, still{s.Rwc[0], s.C[0]};
-  cv::Mat hi;
+  const Impl::Pose still{s.Rwc[0], s.C[0]};
   const int n = s.o.movingFrames();
-  if (s.o.blur > 0 && !s.added_still[k] && s.o.motion != MotionKind::None) {
-    // Motion blur: the mean of sub-frame renderings over the exposure [tau - e, tau + e], sampled
-    // finely enough that the image moves at most one pixel between sub-frames.
-    const double e = 0.5 * s.o.blur / (n - 1);
-    const double t0 = std::max(0.0, s.tau[k] - e), t1 = std::min(1.0, s.tau[k] + e);
-    const Impl::Pose a = s.poseAt(t0), b = s.poseAt(t1);
-    double disp = 0;
-    for (const Face& f : s.faces) {
-      if (f.still) continue;
-      const std::array<Vector3d, 4> poly{f.P0, f.P0 + f.Eu, f.P0 + f.Eu + f.Ev, f.P0 + f.Ev};
-      const auto pa = s.project(poly, a, 1), pb = s.project(poly, b, 1);
-      if (pa.size() != 4 || pb.size() != 4) continue;
-      for (int i = 0; i < 4; ++i) disp = std::max(disp, std::hypot(pa[i].x - pb[i].x, pa[i].y - pb[i].y));
+  // The supersampled canvas of the moving body at motion time t (pose `cam`), with its motion blur.
+  auto canvasAt = [&](double t_mid, const Impl::Pose& cam) {
+    cv::Mat hi;
+    if (s.o.blur > 0 && !s.added_still[k] && s.o.motion != MotionKind::None) {
+      // Motion blur: the mean of sub-frame renderings over the exposure [t - e, t + e], sampled
+      // finely enough that the image moves at most one pixel between sub-frames.
+      const double e = 0.5 * s.o.blur / (n - 1);
+      const double t0 = std::max(0.0, t_mid - e), t1 = std::min(1.0, t_mid + e);
+      const double disp = s.maxDisplacement(t0, t1);
+      const int subs = std::clamp(static_cast<int>(std::ceil(disp)) + 1, 2, 48);
+      cv::Mat acc(s.canvasSize(2), CV_32FC3, cv::Scalar::all(0));
+      for (int i = 0; i < subs; ++i) {
+        const double t = t0 + (t1 - t0) * i / (subs - 1);
+        cv::Mat sub = s.background.clone();
+        s.drawFaces(sub, s.poseAt(t), still);
+        cv::accumulate(sub, acc);
+      }
+      acc.convertTo(hi, CV_8UC3, 1.0 / subs);
+    } else {
+      hi = s.background.clone();
+      s.drawFaces(hi, cam, still);
     }
-    const int subs = std::clamp(static_cast<int>(std::ceil(disp)) + 1, 2, 48);
-    cv::Mat acc(s.canvasSize(2), CV_32FC3, cv::Scalar::all(0));
-    for (int i = 0; i < subs; ++i) {
-      const double t = t0 + (t1 - t0) * i / (subs - 1);
-      cv::Mat sub = s.background.clone();
-      s.drawFaces(sub, s.poseAt(t), still);
-      cv::accumulate(sub, acc);
+    return hi;
+  };
+  // The canvas resampled to the image (distortion, supersampling).
+  auto toImage = [&](const cv::Mat& hi) {
+    cv::Mat img;
+    if (s.distorted()) {
+      cv::Mat dist;
+      cv::remap(hi, dist, s.map_x, s.map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+      cv::resize(dist, img, cv::Size(s.o.width, s.o.height), 0, 0, cv::INTER_AREA);
+    } else {
+      cv::resize(hi, img, cv::Size(s.o.width, s.o.height), 0, 0, cv::INTER_AREA);
     }
-    acc.convertTo(hi, CV_8UC3, 1.0 / subs);
-  } else {
-    hi = s.background.clone();
-    s.drawFaces(hi, cam, still);
-  }
+    return img;
+  };
   cv::Mat img;
-  if (s.distorted()) {
-    cv::Mat dist;
-    cv::remap(hi, dist, s.map_x, s.map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
-    cv::resize(dist, img, cv::Size(s.o.width, s.o.height), 0, 0, cv::INTER_AREA);
+  if (const int bands = s.shutterBands(k); bands == 1) {
+    img = toImage(canvasAt(s.tau[k], Impl::Pose{s.Rwc[k], s.C[k]}));
   } else {
-    cv::resize(hi, img, cv::Size(s.o.width, s.o.height), 0, 0, cv::INTER_AREA);
+    // Rolling shutter: each band of rows from the frame rendered at its middle row's time.
+    img.create(s.o.height, s.o.width, CV_8UC3);
+    for (int b = 0; b < bands; ++b) {
+      const auto [y0, y1] = s.bandRows(b, bands);
+      const double t = s.rowTime(k, 0.5 * (y0 + y1 - 1));
+      toImage(canvasAt(t, s.poseAt(t))).rowRange(y0, y1).copyTo(img.rowRange(y0, y1));
+    }
   }
   if (labels) *labels = this->labels(k);
   if (s.o.noise_sigma > 0) {
@@ -1084,8 +1178,10 @@ std::optional<Eigen::Vector2d> Scene::transfer(const Eigen::Vector2d& x, int a, 
     }
   if (!face) return std::nullopt;
   const bool still = face->still;
-  const Matrix3d& Ra = still ? s.Rwc[0] : s.Rwc.at(a);
-  const Vector3d& Ca = still ? s.C[0] : s.C.at(a);
+  // The pose that exposed x's row (rolling shutter; the frame's pose for a global one).
+  const Impl::Pose pa = still ? Impl::Pose{s.Rwc[0], s.C[0]} : s.rowPose(a, x.y());
+  const Matrix3d& Ra = pa.R;
+  const Vector3d& Ca = pa.C;
   // Undistort, cast the ray, meet the face's plane.
   const double xd = (x.x() - s.pp.x()) / s.o.focal_px, yd = (x.y() - s.pp.y()) / s.o.focal_px;
   const double rd = std::hypot(xd, yd);
@@ -1104,8 +1200,21 @@ std::optional<Eigen::Vector2d> Scene::transfer(const Eigen::Vector2d& x, int a, 
 cv::Mat Scene::labels(int k) const {
   const Impl& s = *impl_;
   if (k < 0 || k >= s.o.frames) throw std::out_of_range("Scene::labels: frame out of range");
+  const int bands = s.shutterBands(k);
+  if (bands == 1) return s.labelsAt(Impl::Pose{s.Rwc[k], s.C[k]});
+  // Rolling shutter: each band of rows at its middle row's pose, as render() draws it.
+  cv::Mat out(s.o.height, s.o.width, CV_8U);
+  for (int b = 0; b < bands; ++b) {
+    const auto [y0, y1] = s.bandRows(b, bands);
+    s.labelsAt(s.rowPose(k, 0.5 * (y0 + y1 - 1))).rowRange(y0, y1).copyTo(out.rowRange(y0, y1));
+  }
+  return out;
+}
+
+cv::Mat Scene::Impl::labelsAt(const Pose& cam) const {
+  const Impl& s = *this;
   cv::Mat lc;
-  s.drawLabels(lc, Impl::Pose{s.Rwc[k], s.C[k]}, Impl::Pose{s.Rwc[0], s.C[0]});
+  s.drawLabels(lc, cam, Pose{s.Rwc[0], s.C[0]});
   if (!s.distorted()) return lc;
   // Distorted pixel x -> canvas pixel (ss = 1): the supersampled map's mean over the 2 x 2 block
   // of x (supersampled pixels 2x, 2x + 1), mapped back to ss = 1.

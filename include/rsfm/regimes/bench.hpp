@@ -77,9 +77,9 @@ struct Row {
   std::string undetermined;               ///< "-", "marked", "no output", "confident" (docs/regimes.md)
   std::optional<double> k1_true, k1_est;  ///< the render's k1 (rendered rows), the reference's (real rows); rsfm's or COLMAP's
   /// The rolling shutter's readout the refinement estimated and its sd (frame intervals;
-  /// summary.json camera.readout, docs/estimate.md section 6); every rendered row is a global
-  /// shutter (readout 0).
-  std::optional<double> readout_est, readout_sd;
+  /// summary.json camera.readout, docs/estimate.md section 6), and the render's
+  /// (RenderOptions::readout; 0 a global shutter; rendered rows only).
+  std::optional<double> readout_est, readout_sd, readout_true;
   /// Rendered rows: rsfm's tracks (the run's tracks.csv) against the truth over their whole lives
   /// (render::tracksAgainstTruth): median and 95th percentile of |track - truth|, and the mean
   /// radial component of track - truth (> 0: outward), pixels.

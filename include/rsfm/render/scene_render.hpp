@@ -97,6 +97,11 @@ struct RenderOptions {
   // Image.
   double noise_sigma = 1.5;  ///< sensor noise, grey levels (8-bit)
   double blur = 0;           ///< motion blur: exposure as a fraction of the frame interval, [0, 1]
+  /// Rolling shutter: the time from the first row's exposure to the last's, as a fraction of the
+  /// frame interval, rows read top to bottom, [0, 1]; 0: a global shutter. Row y of frame k is
+  /// exposed at frame time k + readout (y - (H - 1)/2) / H: the middle row at the frame's time, so
+  /// pose(k) is the middle row's pose (rsfm's model, docs/estimate.md section 6).
+  double readout = 0;
   int jpeg_quality = 0;      ///< 0: none; 1..100: each frame JPEG-compressed at this quality
   /// One image for every face (each box face uses a different crop; the floor tiles it whole);
   /// "procedural": seeded procedural textures; empty: photographs from the Debian package
