@@ -191,6 +191,8 @@ says() {  # says TEXT: the last check's one line names the problem
   if grep -qF -- "$1" "$TMP/err.txt"; then pass=$((pass + 1)); else
     fail=$((fail + 1)); echo "FAIL the message does not say '$1': $(cat "$TMP/err.txt")"; fi
 }
+check "render: rolling shutter readout out of range" 2 "$R" -- render box --out "$R" --readout 2
+says "--readout must be in [0, 1] (the rolling shutter's readout / frame interval), got 2"
 check "estimate: readout direction not a direction" 2 "$E" -- estimate --tracks "$CT" --out "$E" --readout-direction sideways
 says "--readout-direction: sideways not in {down,up,right,left}"
 check "estimate: readout direction with the patch model" 2 "$E" -- estimate --tracks "$CT" --out "$E" --model patches --readout-direction left
