@@ -79,6 +79,14 @@ void sayExposureCompensated(bool quiet, long changed, long steps) {
                changed, steps);
 }
 
+void sayDroppedFrames(bool quiet, long dropped, double fps) {
+  if (dropped > 0 && !quiet)
+    fmt::print(stderr,
+               "track: the video dropped {} frame(s) (its timestamps jump by more than one interval at {:.3f} frames/s): "
+               "the frames keep the numbers their timestamps give, the dropped ones are absent\n",
+               dropped, fps);
+}
+
 void warnFigures(const report::Figures& f) {
   if (const std::string w = f.warning(); !w.empty()) fmt::print(stderr, "rsfm: warning: {}\n", w);
 }

@@ -36,6 +36,8 @@ void sayLeadingFramesLeftOut(bool quiet, int range_first, int first, const char*
 /// `rsfm track` / `run`: when the tracker took `changed` of its `steps` again for a change of
 /// exposure (TrackerOptions::exposure_compensation), says so on stderr unless `quiet`.
 void sayExposureCompensated(bool quiet, long changed, long steps);
+/// Says (stderr) that the video dropped frames (TrackingStats::dropped_frames), if it did.
+void sayDroppedFrames(bool quiet, long dropped, double fps);
 
 /// A registered command: the CLI11 subcommand and what runs when it was parsed.
 struct Command {

@@ -443,11 +443,17 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
   rep.command = invocation();
   nlohmann::json cands = nlohmann::json::array();
   const int reference = tracks.frameNumber(r.still.still_frames);
+  // An index counted from the reference frame, as an input frame number (a video's dropped frames
+  // leave gaps in the numbers: Tracks::frame_numbers).
+  auto fromReference = [&](int offset) {
+    const int k = r.still.still_frames + offset;
+    return k >= 0 && k < tracks.numFrames() ? tracks.frameNumber(k) : reference + offset;
+  };
   for (const auto& c : pf.candidates)
     cands.push_back({{"verdict", vision::toString(c.verdict)}, {"label", c.label}, {"tracks", c.members.size()},
                      {"median_motion_px", c.median_motion_px}, {"same_motion_fraction", c.same_motion_fraction},
-                     {"reference_frame", reference + c.first_frame},
-                     {"pair_frame", c.pair_frame >= 0 ? nlohmann::json(reference + c.pair_frame) : nlohmann::json(nullptr)}});
+                     {"reference_frame", fromReference(c.first_frame)},
+                     {"pair_frame", c.pair_frame >= 0 ? nlohmann::json(fromReference(c.pair_frame)) : nlohmann::json(nullptr)}});
   if (!r.start.hypotheses.empty()) rep.extra["start"] = startJson(r.start);
   // The frame from which the filter estimates each plane (a plane that came into view later: the
   // frame it joined; docs/estimate.md section 1).
@@ -460,11 +466,23 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
                               {"moving_tracks", r.still.moving_tracks},
                               {"held_frames", heldFrames(tracks, r.still)},
                               {"still_px", e.est.still_px}};
+  {
+    // The frames with no observation at all, as [first, last] stretches of input frame numbers.
+    nlohmann::json runs = nlohmann::json::array();
+    const std::vector<int>& u = r.unobserved_frames;
+    for (std::size_t i = 0; i < u.size();) {
+      std::size_t j = i;
+      while (j + 1 < u.size() && u[j + 1] == u[j] + 1) ++j;
+      runs.push_back({u[i], u[j]});
+      i = j + 1;
+    }
+    rep.extra["unobserved_frames"] = runs;
+  }
   nlohmann::json tries = nlohmann::json::array();
   for (const auto& tr : pf.pair_frame_tries)
-    tries.push_back({{"frame", reference + tr.frame}, {"planes", tr.planes}, {"tracks_in_planes", tr.tracks_in_planes}, {"loses_plane", tr.loses_plane}});
+    tries.push_back({{"frame", fromReference(tr.frame)}, {"planes", tr.planes}, {"tracks_in_planes", tr.tracks_in_planes}, {"loses_plane", tr.loses_plane}});
   const vision::PlaneTolerances& tol = pf.tolerances;
-  rep.extra["plane_finding"] = {{"pair_frame", reference + pf.pair_frame}, {"pair_frames_tried", tries}, {"candidates", cands},
+  rep.extra["plane_finding"] = {{"pair_frame", fromReference(pf.pair_frame)}, {"pair_frames_tried", tries}, {"candidates", cands},
                                 {"tracking_noise_px", tol.noise_px > 0 ? nlohmann::json(tol.noise_px) : nlohmann::json(nullptr)},
                                 {"tolerances_px", {{"ransac", tol.ransac_px}, {"stray", tol.verify_px}, {"static", tol.static_px},
                                                    {"same_motion", tol.motion_px}, {"still", tol.still_px}}},
@@ -511,7 +529,9 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
   report::EstimateReport& rep = run.rep;
   if (tracking) {
     rep.extra["stage_seconds"]["tracking"] = tracking->seconds;
-    rep.extra["tracking"] = {{"steps", tracking->steps}, {"exposure_compensated_steps", tracking->exposure_compensated_steps}};
+    rep.extra["tracking"] = {{"steps", tracking->steps},
+                             {"exposure_compensated_steps", tracking->exposure_compensated_steps},
+                             {"dropped_frames", tracking->dropped_frames}};
   }
   nlohmann::json summary;
   report::Figures fig;

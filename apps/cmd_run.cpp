@@ -52,7 +52,8 @@ void addRunCommands(CLI::App& app, std::vector<Command>& commands) {
       if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress, &stats); })) return rc;
       sayLeadingFramesLeftOut(c->e.quiet, c->t.range.first, tracks.first_frame, "corners", "tracks");
       sayExposureCompensated(c->e.quiet, stats.exposure_changes, stats.steps);
-      const RunTracking tracking{steadySeconds() - t0, stats.steps, stats.exposure_changes};
+      sayDroppedFrames(c->e.quiet, stats.dropped_frames, tracks.image.fps);
+      const RunTracking tracking{steadySeconds() - t0, stats.steps, stats.exposure_changes, stats.dropped_frames};
       // The tracks are part of the report.
       TrackOverlay overlay;
       if (c->overlay)

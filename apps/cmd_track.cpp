@@ -114,6 +114,7 @@ void addTrackCommands(CLI::App& app, std::vector<Command>& commands) {
     if (int rc = guarded([&] { tracks = vision::trackInput(c->input, c->t.tracker, c->t.range, progress, &stats); })) return rc;
     sayLeadingFramesLeftOut(c->quiet, c->t.range.first, tracks.first_frame, "corners", "tracks");
     sayExposureCompensated(c->quiet, stats.exposure_changes, stats.steps);
+    sayDroppedFrames(c->quiet, stats.dropped_frames, tracks.image.fps);
     if (int rc = guarded([&] {
           io::writeAllOrNothing({{out / "tracks.csv", io::tracksToString(tracks)}});
           od.commit();

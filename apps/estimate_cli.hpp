@@ -75,6 +75,7 @@ struct RunTracking {
   double seconds = 0;
   long steps = 0;                       ///< frame-to-frame steps tracked
   long exposure_compensated_steps = 0;  ///< of them, tracked again for a change of exposure
+  long dropped_frames = 0;              ///< frames the video dropped (vision::TrackingStats)
 };
 /// `tracking`: `rsfm run`'s tracking (null: the tracks came from a file).
 int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOverlay& overlay, double t_start,

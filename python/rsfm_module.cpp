@@ -156,7 +156,7 @@ Eigen::MatrixXd trackRows(const Tracks& t) {
   Eigen::MatrixXd a(rows, 4);
   long i = 0;
   for (int k = 0; k < t.numFrames(); ++k)
-    for (const auto& p : t.frames[static_cast<size_t>(k)]) a.row(i++) << t.first_frame + k, p.id, p.px.x(), p.px.y();
+    for (const auto& p : t.frames[static_cast<size_t>(k)]) a.row(i++) << t.frameNumber(k), p.id, p.px.x(), p.px.y();
   return a;
 }
 

@@ -739,6 +739,45 @@ TEST(Adaptive, NothingMovingSaysSo) {
   }
 }
 
+TEST(Adaptive, FramesWithNoObservationAreLeftOutAndTheEstimateGoesOn) {
+  // box-1deg with frames 20-22 emptied (nothing tracked there; the tracks go on after them): the
+  // estimate used to end at frame 19. Now it is the estimate on the frames that have observations
+  // (cut by hand with their frame numbers), to the bit, with the empty frames put back without a
+  // pose, and it reaches the last frame with the truth's focal length.
+  const render::Regime* r = render::builtinRegimeSuite().find("box-1deg");
+  ASSERT_NE(r, nullptr);
+  const test::RegimeTracks rt = test::regimeTracks(r->options, 0.2, 13);
+  Tracks gap = rt.tracks, cut = rt.tracks;
+  cut.frames.clear();
+  for (int k = 0; k < gap.numFrames(); ++k) {
+    if (k >= 20 && k <= 22) {
+      gap.frames[k].clear();
+      continue;
+    }
+    cut.frames.push_back(gap.frames[k]);
+    cut.frame_numbers.push_back(gap.frameNumber(k));
+  }
+  const EstimateResult g = estimate(gap, EstimateOptions{});
+  const EstimateResult c = estimate(cut, EstimateOptions{});
+  ASSERT_TRUE(g.refined.ok) << g.refined.message;
+  ASSERT_TRUE(c.refined.ok) << c.refined.message;
+  EXPECT_EQ(g.unobserved_frames, (std::vector<int>{20, 21, 22}));
+  EXPECT_TRUE(c.unobserved_frames.empty());
+  EXPECT_TRUE(g.online.ended.empty()) << g.online.ended;
+  ASSERT_EQ(g.online.frames.size(), static_cast<size_t>(gap.numFrames()));
+  ASSERT_EQ(g.main().frames.size(), static_cast<size_t>(gap.numFrames()));
+  for (int k = 0; k < gap.numFrames(); ++k) {
+    EXPECT_EQ(g.main().frames[k].unobserved, k >= 20 && k <= 22) << k;
+    EXPECT_EQ(g.main().frames[k].frame, k);
+  }
+  EXPECT_EQ(g.refined.state.frames.back().beta, c.refined.state.frames.back().beta);
+  EXPECT_EQ(g.online.frames.back().beta, c.online.frames.back().beta);
+  const double focal = g.refined.state.scale_px / g.refined.state.frames.back().beta;
+  std::printf("box-1deg, frames 20-22 without observations: %zu frames, focal %.2f px (truth %.0f)\n", g.main().frames.size(),
+              focal, r->options.focal_px);
+  EXPECT_NEAR(focal / r->options.focal_px, 1.0, 0.01);
+}
+
 TEST(Adaptive, TheReferenceFrameIsWhereTheSceneStartsToMoveAndLaterStillFramesAreHeld) {
   // box-still-start: frames 0-30 show the first pose (30 still frames, then the orbit's first
   // pose), the camera moves from frame 31. object-still-start: the same for a box turned before a

@@ -161,7 +161,42 @@ TEST(TracksIo, RoundTripKeepsEverything) {
   const Tracks l = io::readTracks(d / "left.csv");
   EXPECT_EQ(l.image.readout_direction, ReadoutDirection::Left);
   EXPECT_EQ(l.image.cx, (l.image.width - 1) / 2.0);
+  // Frames a video dropped (frame_numbers skipping 12-13 and 15): written as stretches, read back
+  // absent (not as empty frames), and every row where it was.
+  Tracks g = st.tracks;
+  g.frame_numbers.clear();
+  for (int k = 0; k < g.numFrames(); ++k) g.frame_numbers.push_back(10 + k + (k >= 2 ? 2 : 0) + (k >= 3 ? 1 : 0));
+  text = io::tracksToString(g);
+  EXPECT_NE(text.find("# frames 10 " + std::to_string(g.frame_numbers.back()) + "\n"), std::string::npos) << text.substr(0, 200);
+  EXPECT_NE(text.find("# dropped_frames 12-13 15\n"), std::string::npos) << text.substr(0, 200);
+  writeText(d / "dropped.csv", text);
+  const Tracks dr = io::readTracks(d / "dropped.csv");
+  EXPECT_EQ(dr.frame_numbers, g.frame_numbers);
+  ASSERT_EQ(dr.numFrames(), g.numFrames());
+  for (int k = 0; k < dr.numFrames(); ++k) {
+    ASSERT_EQ(dr.frames[k].size(), g.frames[k].size());
+    for (size_t i = 0; i < dr.frames[k].size(); ++i) EXPECT_EQ(dr.frames[k][i].px, g.frames[k][i].px);
+  }
+  EXPECT_EQ(io::tracksToString(dr), text);
   fs::remove_all(d);
+}
+
+TEST(FrameSource, DroppedFramesAreFoundFromTheTimestamps) {
+  double interval = 0;
+  // 30 frames/s with millisecond timestamps (as a container rounds them), frames 3 and 6-7 gone.
+  std::vector<double> t;
+  for (int k : {0, 1, 2, 4, 5, 8, 9}) t.push_back(std::round(k * 1000.0 / 30.0) / 1000.0);
+  EXPECT_EQ(vision::droppedFrameOffsets(t, &interval), (std::vector<int>{0, 1, 2, 4, 5, 8, 9}));
+  EXPECT_NEAR(1.0 / interval, 30.0, 0.05);
+  // Nothing dropped, including a variable rate within half an interval: no offsets.
+  std::vector<double> v{0.0, 0.030, 0.071, 0.100, 0.128, 0.170};
+  EXPECT_TRUE(vision::droppedFrameOffsets(v, &interval).empty());
+  EXPECT_NEAR(interval, 0.170 / 5, 1e-12);
+  // Timestamps that cannot be gone by (missing, repeated, going back): no offsets.
+  EXPECT_TRUE(vision::droppedFrameOffsets({0.0, std::nan(""), 0.1}).empty());
+  EXPECT_TRUE(vision::droppedFrameOffsets({0.0, 0.033, 0.033, 0.1}).empty());
+  EXPECT_TRUE(vision::droppedFrameOffsets({0.0, 0.1, 0.05}).empty());
+  EXPECT_TRUE(vision::droppedFrameOffsets({0.5}).empty());
 }
 
 TEST(TracksIo, MalformedFilesNameFileAndLine) {
@@ -187,6 +222,11 @@ TEST(TracksIo, MalformedFilesNameFileAndLine) {
       {"# rsfm-tracks 1\n# image_size 640 480\n# frames 0 3\nframe;track;x;y\n", ":4: expected the column header"},
       {"# rsfm-tracks 1\n# image_size 640 480\n# readout_direction sideways\n", ":3: readout_direction needs one of down"},
       {"# rsfm-tracks 1\n# image_size 640 480\n# readout_direction left up\n", ":3: readout_direction needs one of down"},
+      {"# rsfm-tracks 1\n# image_size 640 480\n# frames 0 3\n# dropped_frames 2-x\nframe,track,x,y\n0,1,2,3\n", ":4: dropped_frames needs frame numbers"},
+      {"# rsfm-tracks 1\n# image_size 640 480\n# frames 0 3\n# dropped_frames\nframe,track,x,y\n0,1,2,3\n", ":4: dropped_frames needs frame numbers"},
+      {"# rsfm-tracks 1\n# image_size 640 480\n# frames 0 3\n# dropped_frames 2-1\nframe,track,x,y\n0,1,2,3\n", ":4: dropped_frames needs frame numbers"},
+      {"# rsfm-tracks 1\n# image_size 640 480\n# frames 0 3\n# dropped_frames 3\nframe,track,x,y\n0,1,2,3\n0,2,2,3\n1,1,2,3\n2,1,2,3\n", ":4: dropped frames 3-3 are not inside"},
+      {"# rsfm-tracks 1\n# image_size 640 480\n# frames 0 3\n# dropped_frames 1-2\nframe,track,x,y\n0,1,2,3\n0,2,2,3\n2,1,2,3\n3,1,2,3\n", ":8: frame 2 is listed in dropped_frames"},
   };
   for (size_t i = 0; i < cases.size(); ++i) {
     const fs::path p = d / ("case" + std::to_string(i) + ".csv");

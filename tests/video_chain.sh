@@ -57,6 +57,25 @@ if command -v ffmpeg >/dev/null; then
   size=$(ffprobe -v error -select_streams v:0 -show_entries stream=codec_name,width,height -of csv=p=0 "$TMP/oddrun/overlay.mp4" 2>&1)
   [ "$size" = "h264,320,240" ] || { echo "FAIL overlay of 319x239 frames: '$size', expected h264,320,240"; exit 1; }
   echo "overlay.mp4 of 319x239 frames: $size (padded, nothing dropped)"
+  # A video that dropped frames (a phone's, a capture that could not keep up): 4 of 100 gone,
+  # the container's average rate 28.8 frames/s. The frames keep the numbers their timestamps
+  # give, the estimate goes across the gap, and the trajectory's timestamps are the truth's.
+  ffmpeg -loglevel error -i "$TMP/r/video.mp4" -vf "select='not(between(n\,40\,43))'" -fps_mode vfr -c:v mpeg4 -q:v 2 "$TMP/drop.mp4"
+  "$RSFM" run "$TMP/drop.mp4" --out "$TMP/droprun" --quiet --no-plots || { echo "FAIL run on a video that dropped frames"; exit 1; }
+  grep -qx "# dropped_frames 40-43" "$TMP/droprun/tracks.csv" && grep -qx "# frames 0 99" "$TMP/droprun/tracks.csv" ||
+    { echo "FAIL tracks.csv of a video that dropped frames 40-43: $(grep '^#' "$TMP/droprun/tracks.csv" | tr '\n' ' ')"; exit 1; }
+  "$RSFM" estimate --tracks "$TMP/droprun/tracks.csv" --out "$TMP/dropest" --quiet --no-plots
+  cmp -s "$TMP/droprun/trajectory.tum" "$TMP/dropest/trajectory.tum" || { echo "FAIL estimate on the dropped video's tracks.csv differs"; exit 1; }
+  "$RSFM" evaluate --estimate "$TMP/droprun" --truth "$TMP/r/truth" >/dev/null
+  /usr/bin/python3 - "$TMP/droprun" <<'PY' || { echo "FAIL a video that dropped frames"; exit 1; }
+import json, sys
+s, e = json.load(open(sys.argv[1] + "/summary.json")), json.load(open(sys.argv[1] + "/evaluation.json"))
+t = [float(l.split()[0]) for l in open(sys.argv[1] + "/trajectory.tum") if not l.startswith("#")]
+assert s["tracking"]["dropped_frames"] == 4 and s["fps"] == 30 and s["last_frame"] == 99, (s["tracking"], s["fps"])
+assert len(t) == 96 and not any(40 / 30 - 1e-9 < x < 43 / 30 + 1e-9 for x in t), len(t)
+assert e["poses"]["matched"] == 96 and e["ate"]["rmse_pct"] < 0.5, (e["poses"], e["ate"])
+print(f"a video that dropped frames 40-43: 96 poses at the truth's timestamps, ATE {e['ate']['rmse_pct']:.3f} % ({e['poses']['matched']} matched)")
+PY
   # A phone video held upright: rotation metadata, which OpenCV's reader applies (turning the
   # frames clockwise by 90 deg), so the sensor's rows are the image's columns and the rolling
   # shutter's readout goes left (docs/estimate.md section 6).

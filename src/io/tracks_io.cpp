@@ -16,15 +16,37 @@ using detail::parseDouble;
 using detail::parseInt;
 using detail::split;
 
+namespace {
+/// '# dropped_frames' stretches per line (the reader's lines are at most 8192 bytes).
+constexpr int kDroppedStretchesPerLine = 200;
+}  // namespace
+
 void writeTracks(std::ostream& os, const Tracks& t) {
-  detail::writeCsvHeader(os, "rsfm-tracks", t.image, t.first_frame, t.numFrames(), t.source);
+  const int n = t.numFrames();
+  const int first = n > 0 ? t.frameNumber(0) : t.first_frame;
+  const int last = n > 0 ? t.frameNumber(n - 1) : t.first_frame - 1;
+  detail::writeCsvHeader(os, "rsfm-tracks", t.image, first, last - first + 1, t.source);
+  // Frame numbers the tracks skip (a video's dropped frames): as stretches, a bounded number per line.
+  std::string line;
+  int on_line = 0;
+  for (int k = 0; k + 1 < n; ++k) {
+    const int a = t.frameNumber(k) + 1, b = t.frameNumber(k + 1) - 1;
+    if (b < a) continue;
+    line += a == b ? fmt::format(" {}", a) : fmt::format(" {}-{}", a, b);
+    if (++on_line == kDroppedStretchesPerLine) {
+      os << "# dropped_frames" << line << "\n";
+      line.clear();
+      on_line = 0;
+    }
+  }
+  if (on_line > 0) os << "# dropped_frames" << line << "\n";
   os << "frame,track,x,y\n";
   std::string buf;
-  for (int k = 0; k < t.numFrames(); ++k)
+  for (int k = 0; k < n; ++k)
     for (const auto& p : t.frames[k]) {
       buf.clear();
       // Shortest round-trip text: `rsfm estimate` on a run's tracks.csv gives the run's numbers.
-      fmt::format_to(std::back_inserter(buf), "{},{},{},{}\n", t.first_frame + k, p.id, p.px.x(), p.px.y());
+      fmt::format_to(std::back_inserter(buf), "{},{},{},{}\n", t.frameNumber(k), p.id, p.px.x(), p.px.y());
       os << buf;
     }
 }
@@ -44,10 +66,33 @@ Tracks readTracks(std::istream& in, const std::filesystem::path& file) {
   struct Row {
     int frame;
     TrackPoint p;
+    int line;
   };
   std::vector<Row> rows;  // memory follows the rows, not the header's frame range
+  struct Dropped {
+    long long a, b;
+    int line;
+  };
+  std::vector<Dropped> dropped;  // '# dropped_frames' stretches
   detail::readRsfmCsv(
-      in, file, head, "frame,track,x,y", 4, "track", [](const std::string&, std::istringstream&, int) {},
+      in, file, head, "frame,track,x,y", 4, "track",
+      [&](const std::string& key, std::istringstream& ss, int ln) {
+        if (key != "dropped_frames") return;  // other keys are comments
+        std::string tok;
+        bool any = false;
+        while (ss >> tok) {
+          const auto dash = tok.find('-', 1);
+          long long a = 0, b = 0;
+          const bool ok = dash == std::string::npos
+                              ? detail::parseInt(tok, &a) && (b = a, true)
+                              : detail::parseInt(std::string_view(tok).substr(0, dash), &a) &&
+                                    detail::parseInt(std::string_view(tok).substr(dash + 1), &b);
+          if (!ok || a < 0 || b < a) throw inputError(file, ln, "dropped_frames needs frame numbers N or stretches A-B (A <= B)");
+          dropped.push_back({a, b, ln});
+          any = true;
+        }
+        if (!any) throw inputError(file, ln, "dropped_frames needs frame numbers N or stretches A-B (A <= B)");
+      },
       [&](int) {
         t.image = head.image;
         t.first_frame = head.first_frame;
@@ -60,10 +105,35 @@ Tracks readTracks(std::istream& in, const std::filesystem::path& file) {
       [&](long long fr, long long id, int ln) {
         if (x < -t.image.width || x > 2.0 * t.image.width || y < -t.image.height || y > 2.0 * t.image.height)
           throw inputError(file, ln, fmt::format("position ({}, {}) far outside the {}x{} image", x, y, t.image.width, t.image.height));
-        rows.push_back({static_cast<int>(fr - t.first_frame), {static_cast<int>(id), Eigen::Vector2d(x, y)}});
+        rows.push_back({static_cast<int>(fr - t.first_frame), {static_cast<int>(id), Eigen::Vector2d(x, y)}, ln});
       });
-  t.frames.resize(static_cast<size_t>(head.last_frame - t.first_frame + 1));
-  for (const Row& r : rows) t.frames[static_cast<size_t>(r.frame)].push_back(r.p);
+  const std::size_t range = static_cast<size_t>(head.last_frame - t.first_frame + 1);
+  if (dropped.empty()) {
+    t.frames.resize(range);
+    for (const Row& r : rows) t.frames[static_cast<size_t>(r.frame)].push_back(r.p);
+    return t;
+  }
+  // Frames the video dropped: absent from the tracks (frame_numbers skips them).
+  std::vector<char> gone(range, 0);
+  for (const Dropped& d : dropped) {
+    if (d.a <= t.first_frame || d.b >= head.last_frame)
+      throw inputError(file, d.line,
+                       fmt::format("dropped frames {}-{} are not inside the frame range's ends ({} {})", d.a, d.b,
+                                   t.first_frame, head.last_frame));
+    for (long long f = d.a; f <= d.b; ++f) gone[static_cast<size_t>(f - t.first_frame)] = 1;
+  }
+  std::vector<int> index(range, -1);
+  for (std::size_t k = 0; k < range; ++k)
+    if (!gone[k]) {
+      index[k] = static_cast<int>(t.frame_numbers.size());
+      t.frame_numbers.push_back(t.first_frame + static_cast<int>(k));
+    }
+  t.frames.resize(t.frame_numbers.size());
+  for (const Row& r : rows) {
+    if (gone[static_cast<size_t>(r.frame)])
+      throw inputError(file, r.line, fmt::format("frame {} is listed in dropped_frames", t.first_frame + r.frame));
+    t.frames[static_cast<size_t>(index[static_cast<size_t>(r.frame)])].push_back(r.p);
+  }
   return t;
 }
 

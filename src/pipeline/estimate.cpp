@@ -26,6 +26,8 @@ std::string rf_message(const EstimateResult& er) {
 /// `cov` (per kept frame, may be empty) is filled the same way, zero before the reference.
 using MotionCov = Eigen::Matrix<double, 6, 6>;
 void fillStill(TrackFilterResult* r, std::vector<MotionCov>* cov, const std::vector<int>& kept, const Tracks& input) {
+  // (An input frame left out because it has no observation at all is marked unobserved: its
+  // record is a copy too, but its pose is not known.)
   if (r->frames.empty()) return;
   const int last = kept[r->frames.size() - 1];
   std::vector<TrackFrame> frames;
@@ -43,6 +45,7 @@ void fillStill(TrackFilterResult* r, std::vector<MotionCov>* cov, const std::vec
       f.q_scale = 1.0;
       f.q_omega_sd_deg = f.q_trans_sd_rel = 0.0;
       f.still = true;
+      f.unobserved = input.frames[static_cast<size_t>(k)].empty();
     }
     frames.push_back(std::move(f));
     if (cov && !cov->empty()) covs.push_back(k < kept[0] ? MotionCov::Zero() : (*cov)[i]);
@@ -334,9 +337,19 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
   std::vector<int> kept;
   {
     size_t h = 0;
+    // The last frame with an observation: empty frames after it are where the tracks ran out
+    // (the filter says so and ends there), not a gap to go across.
+    int last_seen = t->numFrames() - 1;
+    while (last_seen > 0 && t->frames[static_cast<size_t>(last_seen)].empty()) --last_seen;
     for (int k = still; k < t->numFrames(); ++k) {
       while (h < r.still.held.size() && r.still.held[h] < k) ++h;
-      if (h == r.still.held.size() || r.still.held[h] != k) kept.push_back(k);
+      const bool held = h < r.still.held.size() && r.still.held[h] == k;
+      // A frame without a single observation before the last one with some (a stretch where
+      // nothing was tracked; a tracks file with a frame missing) says nothing: left out, and the
+      // stages go on across it (the tracks that continue past it join its neighbours).
+      const bool empty = k < last_seen && t->frames[static_cast<size_t>(k)].empty();
+      if (empty) r.unobserved_frames.push_back(t->frameNumber(k));
+      if (!held && !empty) kept.push_back(k);
     }
   }
   Tracks from_motion;
@@ -353,6 +366,18 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
                       "{:.2f} px); the reference frame is {}",
                       t->frameNumber(0), t->frameNumber(still - 1), vision::kHomographyTestTracks, r.still.threshold_px,
                       t->frameNumber(0), r.still.noise_px, from_motion.first_frame));
+    if (!r.unobserved_frames.empty()) {
+      std::string runs;
+      for (std::size_t i = 0; i < r.unobserved_frames.size();) {
+        std::size_t j = i;
+        while (j + 1 < r.unobserved_frames.size() && r.unobserved_frames[j + 1] == r.unobserved_frames[j] + 1) ++j;
+        runs += fmt::format("{}{}-{}", runs.empty() ? "" : ", ", r.unobserved_frames[i], r.unobserved_frames[j]);
+        i = j + 1;
+      }
+      say(fmt::format("frames {} have no observations (dropped by the video, or nothing tracked): left out, the estimate "
+                      "goes on across them, and they have no pose in the outputs",
+                      runs));
+    }
     if (!r.still.held.empty()) {
       std::string runs;
       for (const auto& [first, last] : vision::heldStretches(r.still))

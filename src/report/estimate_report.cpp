@@ -120,6 +120,7 @@ nlohmann::json onlineEstimates(const TrackFilterResult& res, const OnlineAccurac
 std::vector<TumPose> trajectoryPoses(const TrackFilterResult& res, const ImageInfo& image) {
   std::vector<TumPose> poses;
   for (const auto& f : res.frames) {
+    if (f.unobserved) continue;  // no observation: where the camera was is not known
     TumPose tp;
     tp.t = image.timestamp(f.frame);
     poseOf(f, &tp.p, &tp.q);
@@ -445,6 +446,7 @@ std::string posesCsv(const TrackFilterResult& res, const std::vector<Eigen::Matr
   std::string out = "frame,tx,ty,tz,qx,qy,qz,qw,position_sd,rotation_sd_deg\n";
   for (std::size_t k = 0; k < res.frames.size(); ++k) {
     const TrackFrame& f = res.frames[k];
+    if (f.unobserved) continue;  // as trajectory.tum
     Eigen::Vector3d p;
     Eigen::Quaterniond q;
     poseOf(f, &p, &q);

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <limits>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
@@ -131,6 +132,12 @@ bool FrameSource::read(cv::Mat* img) {
     if (img->empty()) throw inputError(f, 0, fmt::format("frame {} cannot be decoded as an image", index_ + 1));
   }
   ++index_;
+  if (kind_ == Kind::Video) {
+    const double ms = cap_->get(cv::CAP_PROP_POS_MSEC);
+    time_s_ = std::isfinite(ms) ? ms / 1000.0 : std::nan("");
+  } else {
+    time_s_ = std::nan("");
+  }
   if (index_ == 0) {
     size_ = img->size();
   } else if (img->size() != size_) {
@@ -175,6 +182,7 @@ SourceInfo forEachFrame(const std::string& input, FrameRange range, const std::f
     total = end - range.first + 1;
   }
   int used = 0;
+  std::vector<double> times;  // of the frames used
   while (src.read(&img)) {
     // Every frame has the first one's size (FrameSource::read): one check covers them all.
     if (src.index() == 0 && std::min(img.cols, img.rows) < min_size.min_side)
@@ -183,6 +191,7 @@ SourceInfo forEachFrame(const std::string& input, FrameRange range, const std::f
     if (src.index() < range.first) continue;
     if (range.last >= 0 && src.index() > range.last) break;
     fn(img);
+    times.push_back(src.timeSeconds());
     ++used;
     if (progress) progress(used, total > 0 ? std::max(total, used) : -1);
     if (src.index() == range.last) break;  // no read past the range (a corrupt frame after it is not ours)
@@ -194,7 +203,39 @@ SourceInfo forEachFrame(const std::string& input, FrameRange range, const std::f
   if (range.last >= 0 && src.index() < range.last && used < range.last - range.first + 1)
     throw io::InputError(fmt::format("{}: the frame range ends at {} but the input has only {} frames", input, range.last,
                                      src.index() + 1));
-  return {src.fpsKnown() ? src.fps() : 0.0, src.rotation()};
+  SourceInfo info{src.fpsKnown() ? src.fps() : 0.0, src.rotation(), {}};
+  double interval = 0;
+  info.frame_offsets = droppedFrameOffsets(times, &interval);
+  if (!info.frame_offsets.empty() && interval > 0 && 1.0 / interval <= ImageInfo::kMaxFps)
+    info.fps = std::round(1e6 / interval) / 1e6;  // the timestamps' millisecond rounding: 30, not 30.000000000000007
+  return info;
+}
+
+std::vector<int> droppedFrameOffsets(const std::vector<double>& times_s, double* interval_s) {
+  if (interval_s) *interval_s = 0;
+  if (times_s.size() < 2) return {};
+  std::vector<double> gaps;
+  for (std::size_t i = 1; i < times_s.size(); ++i) {
+    const double g = times_s[i] - times_s[i - 1];
+    if (!std::isfinite(g) || !(g > 0)) return {};
+    gaps.push_back(g);
+  }
+  std::vector<double> sorted = gaps;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+  const double m = sorted[sorted.size() / 2];
+  if (interval_s) *interval_s = m;
+  std::vector<int> offsets{0};
+  bool dropped = false;
+  for (double g : gaps) {
+    const long steps = std::max(1L, std::lround(g / m));
+    dropped = dropped || steps > 1;
+    if (offsets.back() > std::numeric_limits<int>::max() - steps) return {};
+    offsets.push_back(offsets.back() + static_cast<int>(steps));
+  }
+  // The interval over the whole span (the median gap carries the timestamps' rounding: 33 or
+  // 34 ms for 30 frames/s in milliseconds).
+  if (interval_s) *interval_s = (times_s.back() - times_s.front()) / offsets.back();
+  return dropped ? offsets : std::vector<int>{};
 }
 
 }  // namespace rsfm::vision

@@ -42,6 +42,9 @@ class FrameSource {
   /// rotation metadata, which OpenCV's FFmpeg reader applies (CAP_PROP_ORIENTATION_META with
   /// CAP_PROP_ORIENTATION_AUTO); 0 for images.
   int rotation() const { return rotation_; }
+  /// The presentation time of the frame last returned by read(), seconds from the stream's
+  /// start (a video's; NaN for images or when the container gives none).
+  double timeSeconds() const { return time_s_; }
 
  private:
   enum class Kind { Video, Pattern, Folder } kind_ = Kind::Video;
@@ -53,6 +56,7 @@ class FrameSource {
   double fps_ = 30.0;
   bool fps_known_ = false;
   int rotation_ = 0;
+  double time_s_ = 0.0;
   cv::Size size_;
 };
 
@@ -72,9 +76,23 @@ struct MinFrameSize {
 
 /// What forEachFrame learnt of its source.
 struct SourceInfo {
-  double fps = 0.0;  ///< the source's frame rate when it states one (FrameSource::fpsKnown), else 0
+  /// The source's frame rate when it states one (FrameSource::fpsKnown), else 0; with frames
+  /// dropped, 1 / the median interval between the frames' timestamps (a container's average rate
+  /// counts the drops: 28.5 for a 30 frames/s video missing 3 of 60).
+  double fps = 0.0;
   int rotation = 0;  ///< FrameSource::rotation
+  /// Empty when the frames follow one another at one interval; else, per frame used, its offset
+  /// from the first in frame intervals (droppedFrameOffsets): a video that dropped frames.
+  std::vector<int> frame_offsets;
 };
+
+/// The frames a video dropped, from its frames' timestamps (seconds, in order): each frame's
+/// offset from the first in frame intervals (the median interval between consecutive
+/// timestamps), each at least one more than the one before (round(gap / interval)). Empty when
+/// no frame is more than half an interval late (nothing dropped), or when a timestamp is missing,
+/// not finite or not after the one before (nothing to go by). `interval_s` (may be null): the
+/// interval, the timestamps' span over the offsets' (0 when there is none).
+std::vector<int> droppedFrameOffsets(const std::vector<double>& times_s, double* interval_s = nullptr);
 
 /// Calls `fn` on every frame of `input` in `range`, in order; `progress(done, total)` after each
 /// (total = -1 when unknown). Throws io::InputError on bad input, frames smaller than `min_size`,

@@ -174,6 +174,9 @@ namespace rsfm::vision {
 struct TrackingStats {
   long steps = 0;             ///< frame-to-frame steps tracked
   long exposure_changes = 0;  ///< of them, steps tracked again for a change of exposure (KltTracker::exposureChanges)
+  /// Frames the video dropped within the range tracked, by its timestamps (SourceInfo::frame_offsets):
+  /// the tracks number their frames by time, so these numbers are absent.
+  long dropped_frames = 0;
 };
 
 /// Tracks `input` (video, pattern or folder) over `range`. `progress(done, total)` is called per
