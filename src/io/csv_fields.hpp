@@ -143,6 +143,9 @@ struct CsvHeader {
   long long last_frame = 0;
   std::string source;
   bool version = false, size = false, pp = false, frames = false;
+  /// Frames of the range the file says are absent (tracks.csv's '# dropped_frames'): the reader
+  /// that set it checks the range against the rows itself, net of them.
+  bool has_absent_frames = false;
   std::string name() const { return magic.substr(magic.find('-') + 1); }  ///< "tracks" / "patches"
 
   /// Handles one '#' line (text after '#', key already read from `ss`). Returns false when the
@@ -279,7 +282,7 @@ void readRsfmCsv(std::istream& in, const std::filesystem::path& file, CsvHeader&
   if (!have_columns) throw inputError(file, ln, fmt::format("no column header '{}'", columns));
   if (rows == 0) throw inputError(file, ln, fmt::format("no {} rows", id_name));
   const long long declared = head.last_frame - head.first_frame + 1;
-  if (declared > rows)
+  if (declared > rows && !head.has_absent_frames)
     throw inputError(file, 0, fmt::format("the header declares {} frames ({}..{}) but the file has only {} row{}: most frames "
                                           "would be empty (a wrong '# frames' line?)",
                                           declared, head.first_frame, head.last_frame, rows, rows == 1 ? "" : "s"));

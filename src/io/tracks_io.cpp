@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <fstream>
@@ -89,6 +90,7 @@ Tracks readTracks(std::istream& in, const std::filesystem::path& file) {
                                     detail::parseInt(std::string_view(tok).substr(dash + 1), &b);
           if (!ok || a < 0 || b < a) throw inputError(file, ln, "dropped_frames needs frame numbers N or stretches A-B (A <= B)");
           dropped.push_back({a, b, ln});
+          head.has_absent_frames = true;
           any = true;
         }
         if (!any) throw inputError(file, ln, "dropped_frames needs frame numbers N or stretches A-B (A <= B)");
@@ -107,32 +109,44 @@ Tracks readTracks(std::istream& in, const std::filesystem::path& file) {
           throw inputError(file, ln, fmt::format("position ({}, {}) far outside the {}x{} image", x, y, t.image.width, t.image.height));
         rows.push_back({static_cast<int>(fr - t.first_frame), {static_cast<int>(id), Eigen::Vector2d(x, y)}, ln});
       });
-  const std::size_t range = static_cast<size_t>(head.last_frame - t.first_frame + 1);
+  const long long range = head.last_frame - t.first_frame + 1;
   if (dropped.empty()) {
-    t.frames.resize(range);
+    t.frames.resize(static_cast<size_t>(range));
     for (const Row& r : rows) t.frames[static_cast<size_t>(r.frame)].push_back(r.p);
     return t;
   }
-  // Frames the video dropped: absent from the tracks (frame_numbers skips them).
-  std::vector<char> gone(range, 0);
-  for (const Dropped& d : dropped) {
+  // Frames the video dropped: absent from the tracks (frame_numbers skips them). The stretches
+  // merged (memory and time follow the rows and the stretches, not the range).
+  for (const Dropped& d : dropped)
     if (d.a <= t.first_frame || d.b >= head.last_frame)
       throw inputError(file, d.line,
                        fmt::format("dropped frames {}-{} are not inside the frame range's ends ({} {})", d.a, d.b,
                                    t.first_frame, head.last_frame));
-    for (long long f = d.a; f <= d.b; ++f) gone[static_cast<size_t>(f - t.first_frame)] = 1;
+  std::sort(dropped.begin(), dropped.end(), [](const Dropped& x, const Dropped& y) { return x.a < y.a; });
+  std::vector<Dropped> merged;
+  for (const Dropped& d : dropped)
+    if (!merged.empty() && d.a <= merged.back().b + 1) merged.back().b = std::max(merged.back().b, d.b);
+    else merged.push_back(d);
+  long long absent = 0;
+  for (const Dropped& d : merged) absent += d.b - d.a + 1;
+  if (range - absent > static_cast<long long>(rows.size()))
+    throw inputError(file, 0, fmt::format("the header declares {} frames ({}..{}, {} of them dropped) but the file has only {} "
+                                          "row{}: most frames would be empty (a wrong '# frames' line?)",
+                                          range, t.first_frame, head.last_frame, absent, rows.size(), rows.size() == 1 ? "" : "s"));
+  long long f = t.first_frame;
+  for (const Dropped& d : merged) {
+    for (; f < d.a; ++f) t.frame_numbers.push_back(static_cast<int>(f));
+    f = d.b + 1;
   }
-  std::vector<int> index(range, -1);
-  for (std::size_t k = 0; k < range; ++k)
-    if (!gone[k]) {
-      index[k] = static_cast<int>(t.frame_numbers.size());
-      t.frame_numbers.push_back(t.first_frame + static_cast<int>(k));
-    }
+  for (; f <= head.last_frame; ++f) t.frame_numbers.push_back(static_cast<int>(f));
   t.frames.resize(t.frame_numbers.size());
+  std::size_t k = 0;  // rows come in ascending frame order
   for (const Row& r : rows) {
-    if (gone[static_cast<size_t>(r.frame)])
-      throw inputError(file, r.line, fmt::format("frame {} is listed in dropped_frames", t.first_frame + r.frame));
-    t.frames[static_cast<size_t>(index[static_cast<size_t>(r.frame)])].push_back(r.p);
+    const int fr = t.first_frame + r.frame;
+    while (k < t.frame_numbers.size() && t.frame_numbers[k] < fr) ++k;
+    if (k == t.frame_numbers.size() || t.frame_numbers[k] != fr)
+      throw inputError(file, r.line, fmt::format("frame {} is listed in dropped_frames", fr));
+    t.frames[k].push_back(r.p);
   }
   return t;
 }

@@ -45,7 +45,7 @@ void fillStill(TrackFilterResult* r, std::vector<MotionCov>* cov, const std::vec
       f.q_scale = 1.0;
       f.q_omega_sd_deg = f.q_trans_sd_rel = 0.0;
       f.still = true;
-      f.unobserved = input.frames[static_cast<size_t>(k)].empty();
+      f.unobserved = k > kept[0] && input.frames[static_cast<size_t>(k)].empty();  // EstimateResult::unobserved_frames
     }
     frames.push_back(std::move(f));
     if (cov && !cov->empty()) covs.push_back(k < kept[0] ? MotionCov::Zero() : (*cov)[i]);
@@ -374,8 +374,8 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
         runs += fmt::format("{}{}-{}", runs.empty() ? "" : ", ", r.unobserved_frames[i], r.unobserved_frames[j]);
         i = j + 1;
       }
-      say(fmt::format("frames {} have no observations (dropped by the video, or nothing tracked): left out, the estimate "
-                      "goes on across them, and they have no pose in the outputs",
+      say(fmt::format("frames {} have no observations (nothing tracked there): left out, the estimate goes on across "
+                      "them, and they have no pose in the outputs",
                       runs));
     }
     if (!r.still.held.empty()) {

@@ -455,17 +455,21 @@ struct Scene::Impl {
     return out;
   }
 
-  // Rolling shutter (RenderOptions::readout): whether frame k's rows are exposed at different
-  // poses (not a repeated still frame, not without motion).
-  bool shutterMoves(int k) const {
-    return o.readout > 0 && !added_still[k] && o.motion != MotionKind::None && o.movingFrames() > 1;
+  // Rolling shutter (RenderOptions::readout): whether frame k's rows may be exposed at
+  // different poses.
+  bool shutterMoves(int) const { return o.readout > 0 && o.motion != MotionKind::None && o.frames > 1; }
+  // The motion time at frame time kf (frames, fractional): the frames' motion times (tau)
+  // interpolated, so flat over added still frames, and extrapolated before the first frame and
+  // after the last with their neighbour's step (poseAt is analytic beyond [0, 1]).
+  double motionTimeAt(double kf) const {
+    const int k0 = std::clamp(static_cast<int>(std::floor(kf)), 0, o.frames - 2);
+    return tau[k0] + (kf - k0) * (tau[k0 + 1] - tau[k0]);
   }
-  // Motion time of image row y (px, the distorted image's rows) of frame k: the frame's time
-  // plus readout (y - (H - 1)/2) / H frame intervals, within the motion.
+  // Motion time of image row y (px, the distorted image's rows) of frame k: frame time
+  // k + readout (y - (H - 1)/2) / H.
   double rowTime(int k, double y) const {
     if (!shutterMoves(k)) return tau[k];
-    const double dt = o.readout * (y - 0.5 * (o.height - 1)) / o.height / (o.movingFrames() - 1);
-    return std::clamp(tau[k] + dt, 0.0, 1.0);
+    return motionTimeAt(k + o.readout * (y - 0.5 * (o.height - 1)) / o.height);
   }
   // The moving body's camera pose when row y of frame k is exposed.
   Pose rowPose(int k, double y) const { return shutterMoves(k) ? poseAt(rowTime(k, y)) : Pose{Rwc[k], C[k]}; }
@@ -511,6 +515,7 @@ struct Scene::Impl {
           if (seen) disp = std::max(disp, (*pa - *pb).norm());
         }
     }
+    if (!(disp > 1e-9)) return 1;  // nothing moves over the frame's rows (a still frame)
     return std::clamp(static_cast<int>(std::ceil(4 * disp)) + 1, 2, 64);
   }
   // Rows [y0, y1) of band b of `bands`.
@@ -1070,6 +1075,7 @@ io::TumPose Scene::pose(int k) const {
 
 std::optional<Eigen::Vector2d> Scene::project(const Eigen::Vector3d& X_ref, int k, bool still_body) const {
   const Impl& s = *impl_;
+  if (k < 0 || k >= s.o.frames) throw std::out_of_range("Scene::project: frame out of range");
   const Vector3d Xw = s.Rwc[0] * X_ref + s.C[0];
   auto through = [&](const Matrix3d& R, const Vector3d& Ck) -> std::optional<Eigen::Vector2d> {
     const Vector3d Xc = R.transpose() * (Xw - Ck);
@@ -1167,6 +1173,7 @@ cv::Mat Scene::render(int k, cv::Mat* labels) const {
 
 std::optional<Eigen::Vector2d> Scene::transfer(const Eigen::Vector2d& x, int a, int b, const cv::Mat& labels_a) const {
   const Impl& s = *impl_;
+  if (a < 0 || a >= s.o.frames || b < 0 || b >= s.o.frames) throw std::out_of_range("Scene::transfer: frame out of range");
   const int xi = static_cast<int>(std::lround(x.x())), yi = static_cast<int>(std::lround(x.y()));
   if (xi < 0 || yi < 0 || xi >= labels_a.cols || yi >= labels_a.rows) return std::nullopt;
   const int label = labels_a.at<uchar>(yi, xi);

@@ -90,7 +90,7 @@ TracksTruthError tracksAgainstTruth(const Scene& scene, const Tracks& tracks) {
   for (int id = 0; id < static_cast<int>(spans.size()); ++id) {
     const TrackSpan s = spans[id];
     if (s.length() < 2) continue;
-    const int a = tracks.first_frame + s.first;
+    const int a = tracks.frameNumber(s.first);
     auto it = labels.find(a);
     if (it == labels.end()) it = labels.emplace(a, scene.labels(a)).first;
     const cv::Mat& la = it->second;
@@ -107,7 +107,7 @@ TracksTruthError tracksAgainstTruth(const Scene& scene, const Tracks& tracks) {
     for (int k = s.first + 1; k <= s.last; ++k) {
       const TrackPoint* p = tracks.find(k, id);
       if (!p) continue;
-      const auto truth = scene.transfer(x0, a, tracks.first_frame + k, la);
+      const auto truth = scene.transfer(x0, a, tracks.frameNumber(k), la);
       if (!truth) continue;
       const Eigen::Vector2d d = p->px - *truth;
       const Eigen::Vector2d r = *truth - centre;

@@ -512,8 +512,8 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
   const auto spans = trackSpans(*r.tracks);
   for (size_t id = 0; id < spans.size(); ++id) {
     if (spans[id].first < 0) continue;
-    lc += fmt::format("{},{},{},{}\n", id, (*r.labels)[id], r.tracks->first_frame + spans[id].first,
-                      r.tracks->first_frame + spans[id].last);
+    lc += fmt::format("{},{},{},{}\n", id, (*r.labels)[id], r.tracks->frameNumber(spans[id].first),
+                      r.tracks->frameNumber(spans[id].last));
   }
   files->write(dir / "labels.csv", lc);
   nlohmann::json summary = estimateSummary(r);

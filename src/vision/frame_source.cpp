@@ -182,8 +182,9 @@ SourceInfo forEachFrame(const std::string& input, FrameRange range, const std::f
     total = end - range.first + 1;
   }
   int used = 0;
-  std::vector<double> times;  // of the frames used
+  std::vector<double> times;  // of every frame decoded, from the stream's first
   while (src.read(&img)) {
+    times.push_back(src.timeSeconds());
     // Every frame has the first one's size (FrameSource::read): one check covers them all.
     if (src.index() == 0 && std::min(img.cols, img.rows) < min_size.min_side)
       throw io::InputError(fmt::format("{}: frames are {}x{} px; {} at least {}x{}", io::printable(input, 300), img.cols,
@@ -191,7 +192,6 @@ SourceInfo forEachFrame(const std::string& input, FrameRange range, const std::f
     if (src.index() < range.first) continue;
     if (range.last >= 0 && src.index() > range.last) break;
     fn(img);
-    times.push_back(src.timeSeconds());
     ++used;
     if (progress) progress(used, total > 0 ? std::max(total, used) : -1);
     if (src.index() == range.last) break;  // no read past the range (a corrupt frame after it is not ours)
@@ -203,9 +203,14 @@ SourceInfo forEachFrame(const std::string& input, FrameRange range, const std::f
   if (range.last >= 0 && src.index() < range.last && used < range.last - range.first + 1)
     throw io::InputError(fmt::format("{}: the frame range ends at {} but the input has only {} frames", input, range.last,
                                      src.index() + 1));
-  SourceInfo info{src.fpsKnown() ? src.fps() : 0.0, src.rotation(), {}};
+  const double stated = src.fpsKnown() ? src.fps() : 0.0;
+  SourceInfo info{stated, src.rotation(), {}, stated};
   double interval = 0;
-  info.frame_offsets = droppedFrameOffsets(times, &interval);
+  // Up to the last frame used (a frame read past the range is not ours).
+  const int last_used = range.last >= 0 ? std::min(src.index(), range.last) : src.index();
+  times.resize(static_cast<size_t>(last_used + 1));
+  if (std::vector<int> all = droppedFrameOffsets(times, &interval); !all.empty())
+    info.frame_offsets.assign(all.begin() + range.first, all.end());
   if (!info.frame_offsets.empty() && interval > 0 && 1.0 / interval <= ImageInfo::kMaxFps)
     info.fps = std::round(1e6 / interval) / 1e6;  // the timestamps' millisecond rounding: 30, not 30.000000000000007
   return info;

@@ -430,16 +430,19 @@ Tracks trackInput(const std::string& input, const TrackerOptions& options, Frame
       {need, fmt::format("tracking with a {} px window, {} px template radius and {} px border needs", options.window_px,
                          options.affine.radius, options.border_px)});
   Tracks t = tracker.tracks(range.first);
+  const std::vector<int>& numbers = source.frame_offsets;
   if (stats)
     *stats = {std::max(0L, static_cast<long>(t.numFrames()) - 1), tracker.exposureChanges(),
-              source.frame_offsets.empty() ? 0 : source.frame_offsets.back() + 1 - t.numFrames()};
+              numbers.empty() ? 0 : numbers.back() - numbers.front() + 1 - t.numFrames()};
   // A video that dropped frames: each frame keeps the number its timestamp gives (the dropped
   // ones are absent: tracks.csv's '# dropped_frames', docs/tracks.md).
-  if (!source.frame_offsets.empty())
-    for (int off : source.frame_offsets) t.frame_numbers.push_back(range.first + off);
+  if (!numbers.empty()) t.frame_numbers = numbers;
   // Frames before the first corner carry nothing to estimate from (the tracker detects again in
   // every frame until corners appear): the tracks start at the first frame that has some.
-  trimLeadingEmptyFrames(&t);
+  const int trimmed = trimLeadingEmptyFrames(&t);
+  // Numbered by time, the tracks' first_frame stays frames[0]'s decoded index (the overlay reads
+  // the video by it; Tracks::frame_numbers).
+  if (!numbers.empty()) t.first_frame = range.first + trimmed;
   t.source = input;
   t.image.fps = source.fps;
   t.image.readout_direction = readoutDirectionAfterRotation(source.rotation);

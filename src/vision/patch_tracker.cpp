@@ -136,7 +136,7 @@ PatchTracks trackPatchesInput(const std::string& input, const PatchTrackerOption
   PatchTracks t = tracker.tracks(range.first);
   trimLeadingEmptyFrames(&t);  // a fade-in: the patches start at the first frame with one
   t.source = input;
-  t.image.fps = source.fps;
+  t.image.fps = source.stated_fps;  // the patch tracks keep the decoded numbering (docs/tracks.md)
   t.image.readout_direction = readoutDirectionAfterRotation(source.rotation);
   return t;
 }

@@ -92,9 +92,10 @@ struct EstimateResult {
   /// so both cover every input frame. Labels cover every input id (a track that ended before the
   /// reference frame: -2).
   vision::StillStart still;
-  /// Input frame numbers of the frames after the reference frame with no observation at all (a
-  /// frame the video dropped, nothing tracked): left out of every stage like a held frame, put
-  /// back with TrackFrame::unobserved (no pose in trajectory.tum or poses.csv).
+  /// Input frame numbers of the frames after the reference frame and before the last observed
+  /// one with no observation at all (nothing tracked there; a video's dropped frames are absent
+  /// from the tracks instead): left out of every stage like a held frame, put back with
+  /// TrackFrame::unobserved (no pose in trajectory.tum or poses.csv).
   std::vector<int> unobserved_frames;
   vision::PlaneFinding planes;      ///< label per track, every candidate plane, the pair frame (an index from the reference frame)
   vision::PlaneStart start;         ///< the homography start (ok = false: not tried, or refused: note says why)

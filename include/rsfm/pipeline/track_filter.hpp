@@ -151,8 +151,8 @@ struct TrackFrame {
   /// frame before it (of the reference frame's before the reference frame) with its own frame
   /// number and no observations.
   bool still = false;
-  /// An input frame with no observation at all (a frame the video dropped, a stretch where
-  /// nothing was tracked; EstimateResult::unobserved_frames): put back like a still frame (and
+  /// An input frame with no observation at all (a stretch where nothing was tracked;
+  /// EstimateResult::unobserved_frames): put back like a still frame (and
   /// `still` set) so that every input frame has a record, but nothing says where the camera was:
   /// trajectory.tum and poses.csv have no line for it.
   bool unobserved = false;

@@ -67,7 +67,10 @@ struct Tracks {
   std::vector<std::vector<TrackPoint>> frames;
   std::string source;  ///< what was tracked (informative)
   /// Empty: frames[k] is frame first_frame + k. Otherwise frames[k] is frame frame_numbers[k]
-  /// (increasing): a sequence with frames left out (rsfm::estimate()'s still frames).
+  /// (increasing): a sequence with frames left out (rsfm::estimate()'s still frames; a video
+  /// that dropped frames, numbered by its timestamps: then the tracker leaves first_frame at
+  /// frames[0]'s decoded index, which the overlay reads the video by; tracks.csv's
+  /// '# dropped_frames').
   std::vector<int> frame_numbers;
 
   int numFrames() const { return static_cast<int>(frames.size()); }

@@ -81,9 +81,14 @@ struct SourceInfo {
   /// counts the drops: 28.5 for a 30 frames/s video missing 3 of 60).
   double fps = 0.0;
   int rotation = 0;  ///< FrameSource::rotation
-  /// Empty when the frames follow one another at one interval; else, per frame used, its offset
-  /// from the first in frame intervals (droppedFrameOffsets): a video that dropped frames.
+  /// Empty when the frames up to the last one used follow one another at one interval; else, per
+  /// frame used, its number counted by the timestamps from the stream's first frame (0) in frame
+  /// intervals (droppedFrameOffsets over every frame decoded): a video that dropped frames. The
+  /// range's first/last stay decoded frames' indices.
   std::vector<int> frame_offsets;
+  /// The rate the source states (FrameSource::fpsKnown), else 0, whatever the timestamps say: for
+  /// a consumer that keeps the decoded numbering (the patch tracker).
+  double stated_fps = 0.0;
 };
 
 /// The frames a video dropped, from its frames' timestamps (seconds, in order): each frame's
