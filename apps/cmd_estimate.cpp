@@ -466,18 +466,8 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
                               {"moving_tracks", r.still.moving_tracks},
                               {"held_frames", heldFrames(tracks, r.still)},
                               {"still_px", e.est.still_px}};
-  {
-    // The frames with no observation at all, as [first, last] stretches of input frame numbers.
-    nlohmann::json runs = nlohmann::json::array();
-    const std::vector<int>& u = r.unobserved_frames;
-    for (std::size_t i = 0; i < u.size();) {
-      std::size_t j = i;
-      while (j + 1 < u.size() && u[j + 1] == u[j] + 1) ++j;
-      runs.push_back({u[i], u[j]});
-      i = j + 1;
-    }
-    rep.extra["unobserved_frames"] = runs;
-  }
+  // The frames with no observation at all, as [first, last] stretches of input frame numbers.
+  rep.extra["unobserved_frames"] = consecutiveStretches(r.unobserved_frames);
   nlohmann::json tries = nlohmann::json::array();
   for (const auto& tr : pf.pair_frame_tries)
     tries.push_back({{"frame", fromReference(tr.frame)}, {"planes", tr.planes}, {"tracks_in_planes", tr.tracks_in_planes}, {"loses_plane", tr.loses_plane}});

@@ -79,6 +79,7 @@ Tracks readTracks(std::istream& in, const std::filesystem::path& file) {
       in, file, head, "frame,track,x,y", 4, "track",
       [&](const std::string& key, std::istringstream& ss, int ln) {
         if (key != "dropped_frames") return;  // other keys are comments
+        auto bad = [&] { return inputError(file, ln, "dropped_frames needs frame numbers N or stretches A-B (A <= B)"); };
         std::string tok;
         bool any = false;
         while (ss >> tok) {
@@ -88,12 +89,12 @@ Tracks readTracks(std::istream& in, const std::filesystem::path& file) {
                               ? detail::parseInt(tok, &a) && (b = a, true)
                               : detail::parseInt(std::string_view(tok).substr(0, dash), &a) &&
                                     detail::parseInt(std::string_view(tok).substr(dash + 1), &b);
-          if (!ok || a < 0 || b < a) throw inputError(file, ln, "dropped_frames needs frame numbers N or stretches A-B (A <= B)");
+          if (!ok || a < 0 || b < a) throw bad();
           dropped.push_back({a, b, ln});
           head.has_absent_frames = true;
           any = true;
         }
-        if (!any) throw inputError(file, ln, "dropped_frames needs frame numbers N or stretches A-B (A <= B)");
+        if (!any) throw bad();
       },
       [&](int) {
         t.image = head.image;

@@ -368,12 +368,8 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
                       t->frameNumber(0), r.still.noise_px, from_motion.first_frame));
     if (!r.unobserved_frames.empty()) {
       std::string runs;
-      for (std::size_t i = 0; i < r.unobserved_frames.size();) {
-        std::size_t j = i;
-        while (j + 1 < r.unobserved_frames.size() && r.unobserved_frames[j + 1] == r.unobserved_frames[j] + 1) ++j;
-        runs += fmt::format("{}{}-{}", runs.empty() ? "" : ", ", r.unobserved_frames[i], r.unobserved_frames[j]);
-        i = j + 1;
-      }
+      for (const auto& [first, last] : consecutiveStretches(r.unobserved_frames))
+        runs += fmt::format("{}{}-{}", runs.empty() ? "" : ", ", first, last);
       say(fmt::format("frames {} have no observations (nothing tracked there): left out, the estimate goes on across "
                       "them, and they have no pose in the outputs",
                       runs));

@@ -455,9 +455,9 @@ struct Scene::Impl {
     return out;
   }
 
-  // Rolling shutter (RenderOptions::readout): whether frame k's rows may be exposed at
-  // different poses.
-  bool shutterMoves(int) const { return o.readout > 0 && o.motion != MotionKind::None && o.frames > 1; }
+  // Rolling shutter (RenderOptions::readout): whether a frame's rows may be exposed at different
+  // poses.
+  bool rollingShutter() const { return o.readout > 0 && o.motion != MotionKind::None && o.frames > 1; }
   // The motion time at frame time kf (frames, fractional): the frames' motion times (tau)
   // interpolated, so flat over added still frames, and extrapolated before the first frame and
   // after the last with their neighbour's step (poseAt is analytic beyond [0, 1]).
@@ -468,11 +468,11 @@ struct Scene::Impl {
   // Motion time of image row y (px, the distorted image's rows) of frame k: frame time
   // k + readout (y - (H - 1)/2) / H.
   double rowTime(int k, double y) const {
-    if (!shutterMoves(k)) return tau[k];
+    if (!rollingShutter()) return tau[k];
     return motionTimeAt(k + o.readout * (y - 0.5 * (o.height - 1)) / o.height);
   }
   // The moving body's camera pose when row y of frame k is exposed.
-  Pose rowPose(int k, double y) const { return shutterMoves(k) ? poseAt(rowTime(k, y)) : Pose{Rwc[k], C[k]}; }
+  Pose rowPose(int k, double y) const { return rollingShutter() ? poseAt(rowTime(k, y)) : Pose{Rwc[k], C[k]}; }
   // The largest image displacement (px, undistorted canvas) of a moving face's corner between
   // motion times t0 and t1.
   double maxDisplacement(double t0, double t1) const {
@@ -492,7 +492,7 @@ struct Scene::Impl {
   // a band's rows are at most 1/8 px from where their own time puts them; an eighth-pixel step
   // measured the same in BoxRender.ARollingShutterExposesEachRowAtItsOwnTime at twice the cost).
   int shutterBands(int k) const {
-    if (!shutterMoves(k)) return 1;
+    if (!rollingShutter()) return 1;
     // Points on a 5 x 5 grid of every moving face, where they are in the image: a face's corners
     // can project far outside it (the floor's), and move far more than anything seen.
     const Pose a = poseAt(rowTime(k, 0)), b = poseAt(rowTime(k, o.height - 1));
@@ -1087,7 +1087,7 @@ std::optional<Eigen::Vector2d> Scene::project(const Eigen::Vector3d& X_ref, int 
   };
   if (still_body) return through(s.Rwc[0], s.C[0]);
   std::optional<Eigen::Vector2d> x = through(s.Rwc.at(k), s.C.at(k));
-  if (!s.shutterMoves(k)) return x;
+  if (!s.rollingShutter()) return x;
   // Rolling shutter: the row the point is seen in is exposed at that row's pose; a fixed point
   // (it contracts by the readout times the image's vertical motion per frame over its height).
   for (int it = 0; it < 20 && x; ++it) {

@@ -30,6 +30,17 @@ std::vector<TrackSpan> trackSpans(const Tracks& t) {
   return s;
 }
 
+std::vector<std::array<int, 2>> consecutiveStretches(const std::vector<int>& sorted) {
+  std::vector<std::array<int, 2>> out;
+  for (std::size_t i = 0; i < sorted.size();) {
+    std::size_t j = i;
+    while (j + 1 < sorted.size() && sorted[j + 1] == sorted[j] + 1) ++j;
+    out.push_back({sorted[i], sorted[j]});
+    i = j + 1;
+  }
+  return out;
+}
+
 int trimLeadingEmptyFrames(Tracks* t) {
   const std::size_t n = leadingEmptyFrames(t->frames);
   if (n == 0 || n == t->frames.size()) return 0;

@@ -26,16 +26,7 @@ cv::Point2d apply(const cv::Matx33d& h, const cv::Point2d& p) {
 }
 }  // namespace
 
-std::vector<std::array<int, 2>> heldStretches(const StillStart& s) {
-  std::vector<std::array<int, 2>> out;
-  for (size_t i = 0; i < s.held.size();) {
-    size_t j = i;
-    while (j + 1 < s.held.size() && s.held[j + 1] == s.held[j] + 1) ++j;
-    out.push_back({s.held[i], s.held[j]});
-    i = j + 1;
-  }
-  return out;
-}
+std::vector<std::array<int, 2>> heldStretches(const StillStart& s) { return consecutiveStretches(s.held); }
 
 StillStart findStillStart(const Tracks& tracks, double still_px, int min_tracks) {
   if (std::isnan(still_px)) throw std::invalid_argument("still_px must be a number (<= 0: no still start)");

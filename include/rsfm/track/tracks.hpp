@@ -4,6 +4,7 @@
 // No I/O here: the file format lives in rsfm/io/tracks_io.hpp.
 #include <Eigen/Core>
 
+#include <array>
 #include <cstddef>
 
 #include <string>
@@ -81,6 +82,10 @@ struct Tracks {
   /// Position of track `id` in frame index k (0-based within `frames`), or nullptr.
   const TrackPoint* find(int k, int id) const;
 };
+
+/// Runs of consecutive numbers in `sorted` (increasing) as [first, last] pairs: 3 4 5 9 -> [3, 5]
+/// [9, 9] (held frames, frames with no observation).
+std::vector<std::array<int, 2>> consecutiveStretches(const std::vector<int>& sorted);
 
 /// Per-track summary: first and last frame index (0-based within Tracks::frames), length.
 struct TrackSpan {

@@ -77,8 +77,8 @@ struct MinFrameSize {
 /// What forEachFrame learnt of its source.
 struct SourceInfo {
   /// The source's frame rate when it states one (FrameSource::fpsKnown), else 0; with frames
-  /// dropped, 1 / the median interval between the frames' timestamps (a container's average rate
-  /// counts the drops: 28.5 for a 30 frames/s video missing 3 of 60).
+  /// dropped, 1 / the interval of droppedFrameOffsets (a container's average rate counts the
+  /// drops: 28.5 for a 30 frames/s video missing 3 of 60).
   double fps = 0.0;
   int rotation = 0;  ///< FrameSource::rotation
   /// Empty when the frames up to the last one used follow one another at one interval; else, per
