@@ -82,9 +82,10 @@ void sayExposureCompensated(bool quiet, long changed, long steps) {
 void sayDroppedFrames(bool quiet, long dropped, double fps) {
   if (dropped > 0 && !quiet)
     fmt::print(stderr,
-               "track: the video dropped {} frame(s) (its timestamps jump by more than one interval at {:.3f} frames/s): "
-               "the frames keep the numbers their timestamps give, the dropped ones are absent\n",
-               dropped, fps);
+               "track: {} frame(s) missing ({}): the frames keep the numbers their times give, the missing ones are absent\n",
+               dropped,
+               fps > 0 ? fmt::format("the timestamps jump by more than one interval at {:.3f} frames/s", fps)
+                       : std::string("the images' numbers skip them"));
 }
 
 void warnFigures(const report::Figures& f) {

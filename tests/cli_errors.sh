@@ -310,11 +310,20 @@ for i in 0 1 3; do
 done
 check "run: missing frame in a pattern" 2 "$V4" -- run "$TMP/gap/g%d.pgm" --out "$V4" --quiet
 grep -q "missing frame" "$TMP/err.txt" || { fail=$((fail + 1)); echo "FAIL missing-frame message: $(cat "$TMP/err.txt")"; }
+# A folder whose images' names number them twice (1 and 01): which comes first is not rsfm's to guess.
+mkdir -p "$TMP/twice"
+cp "$TMP/gap/g0.pgm" "$TMP/twice/1.pgm"; cp "$TMP/gap/g0.pgm" "$TMP/twice/01.pgm"; cp "$TMP/gap/g1.pgm" "$TMP/twice/2.pgm"
+check "run: two images with one number" 2 "$V4" -- run "$TMP/twice" --out "$V4" --quiet
+grep -q "01.pgm and .*1.pgm: two images with one number\|1.pgm and .*01.pgm: two images with one number" "$TMP/err.txt" ||
+  { fail=$((fail + 1)); echo "FAIL two-images message does not name both: $(cat "$TMP/err.txt")"; }
 T4="$TMP/tracks"
 mkdir -p "$T4"
 : >"$T4/empty.csv"
 check "estimate: missing tracks file" 2 "$V4" -- estimate --tracks "$T4/none.csv" --out "$V4" --quiet
 check "estimate: empty tracks file" 2 "$V4" -- estimate --tracks "$T4/empty.csv" --out "$V4" --quiet
+printf '# rsfm-tracks 1\n# image_size 640 480\n# time_origin 1305031102.5\n# frames 0 9\nframe,track,x,y\n0,0,10,10\n' >"$T4/origin.csv"
+check "estimate: time origin without fps" 2 "$V4" -- estimate --tracks "$T4/origin.csv" --out "$V4" --quiet
+grep -q "origin.csv:3: time_origin needs '# fps'" "$TMP/err.txt" || { fail=$((fail + 1)); echo "FAIL time_origin message: $(cat "$TMP/err.txt")"; }
 printf '# rsfm-tracks 1\n# image_size 640 480\n# frames 0 9\nframe,track,x,y\n0,0,10,10\n0,1,abc,4\n' >"$T4/bad.csv"
 check "estimate: malformed tracks file" 2 "$V4" -- estimate --tracks "$T4/bad.csv" --out "$V4" --quiet
 grep -q "bad.csv:6: x or y is not a number" "$TMP/err.txt" ||

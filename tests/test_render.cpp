@@ -374,7 +374,7 @@ TEST(BoxRender, ARollingShutterExposesEachRowAtItsOwnTime) {
   cv::Mat lk, g, r;
   cv::cvtColor(gs.render(k, &lk), g, cv::COLOR_BGR2GRAY);
   cv::cvtColor(rs.render(k), r, cv::COLOR_BGR2GRAY);
-  cv::Mat inner = lk > 0 & lk < Scene::kStillLabel;
+  cv::Mat inner = (lk > 0) & (lk < Scene::kStillLabel);
   cv::erode(inner, inner, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(13, 13)));
   std::vector<cv::Point2f> c0, c1;
   cv::goodFeaturesToTrack(g, c0, 200, 0.01, 5, inner);

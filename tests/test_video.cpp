@@ -178,6 +178,17 @@ TEST(TracksIo, RoundTripKeepsEverything) {
     for (size_t i = 0; i < dr.frames[k].size(); ++i) EXPECT_EQ(dr.frames[k][i].px, g.frames[k][i].px);
   }
   EXPECT_EQ(io::tracksToString(dr), text);
+  // A time origin (images named by their timestamps) is kept with its rate, and gives the
+  // trajectory's timestamps: seconds from it.
+  Tracks o = st.tracks;
+  o.image.fps = 30.000267;
+  o.image.time_origin = 1305031102.175304;
+  text = io::tracksToString(o);
+  EXPECT_NE(text.find("# time_origin 1305031102.175304\n"), std::string::npos) << text.substr(0, 200);
+  writeText(d / "origin.csv", text);
+  const Tracks ro = io::readTracks(d / "origin.csv");
+  EXPECT_EQ(ro.image.time_origin, o.image.time_origin);
+  EXPECT_EQ(ro.image.timestamp(3), 1305031102.175304 + 3 / 30.000267);
   fs::remove_all(d);
 }
 
@@ -197,6 +208,63 @@ TEST(FrameSource, DroppedFramesAreFoundFromTheTimestamps) {
   EXPECT_TRUE(vision::droppedFrameOffsets({0.0, 0.033, 0.033, 0.1}).empty());
   EXPECT_TRUE(vision::droppedFrameOffsets({0.0, 0.1, 0.05}).empty());
   EXPECT_TRUE(vision::droppedFrameOffsets({0.5}).empty());
+}
+
+TEST(FrameSource, AFolderIsReadInTheOrderOfItsNamesNumbersWhichGiveTheTimes) {
+  const fs::path d = tempDir("named");
+  // Each image's grey level says which it is; `names` are written in a scrambled order.
+  const auto folder = [&](const std::string& sub, const std::vector<std::string>& names) {
+    fs::create_directories(d / sub);
+    for (std::size_t i = 0; i < names.size(); ++i)
+      cv::imwrite((d / sub / names[i]).string(), cv::Mat(24, 24, CV_8U, cv::Scalar(static_cast<double>(10 * i))));
+    return (d / sub).string();
+  };
+  // The grey levels read, in order, and what forEachFrame learnt.
+  const auto readAll = [](const std::string& in, vision::SourceInfo* info) {
+    std::vector<int> levels;
+    *info = vision::forEachFrame(in, {}, [&](const cv::Mat& m) { levels.push_back(m.at<uchar>(0, 0) / 10); });
+    return levels;
+  };
+  vision::SourceInfo info;
+  // Unpadded frame numbers (ffmpeg's img%d.png): 2 before 10, not after 1 (a plain sort of the
+  // names put 10 second). The numbers count frames: no rate; 7 is missing, a dropped frame.
+  const std::string plain =
+      folder("plain", {"img10.png", "img2.png", "img1.png", "img8.png", "img3.png", "img4.png", "img5.png", "img6.png", "img9.png"});
+  EXPECT_EQ(readAll(plain, &info), (std::vector<int>{2, 1, 4, 5, 6, 7, 3, 8, 0}));
+  EXPECT_EQ(info.fps, 0.0);
+  EXPECT_EQ(info.time_origin_s, 0.0);
+  EXPECT_EQ(info.frame_offsets, (std::vector<int>{0, 1, 2, 3, 4, 5, 7, 8, 9}));
+  // TUM's names: seconds since 1970 with microseconds, ~30 frames/s with the interval's jitter,
+  // the frame after the third missing. The rate from the names, the first name the time origin.
+  const std::vector<std::string> tum = {"1305031102.175304.png", "1305031102.211242.png", "1305031102.243139.png",
+                                        "1305031102.311158.png", "1305031102.343213.png", "1305031102.375071.png"};
+  const std::string tum_dir = folder("tum", {tum[3], tum[0], tum[5], tum[1], tum[4], tum[2]});
+  EXPECT_EQ(readAll(tum_dir, &info), (std::vector<int>{1, 3, 5, 0, 4, 2}));
+  EXPECT_EQ(info.frame_offsets, (std::vector<int>{0, 1, 2, 4, 5, 6}));
+  EXPECT_NEAR(info.fps, 6.0 / (0.375071 - 0.175304), 1e-5);
+  EXPECT_NEAR(info.time_origin_s, 1305031102.175304, 1e-6);
+  EXPECT_NEAR(info.stated_fps, 5.0 / (0.375071 - 0.175304), 1e-5);  // the average, as a container states it
+  // EuRoC's (and ROS's): nanoseconds since 1970, 20 frames/s, nothing dropped: the rate and
+  // origin all the same, no offsets.
+  std::vector<std::string> euroc;
+  for (long long k = 0; k < 4; ++k) euroc.push_back(std::to_string(1403636579763555584LL + 50000000LL * k) + ".png");
+  EXPECT_EQ(readAll(folder("euroc", {euroc[2], euroc[0], euroc[3], euroc[1]}), &info), (std::vector<int>{1, 3, 0, 2}));
+  EXPECT_TRUE(info.frame_offsets.empty());
+  EXPECT_NEAR(info.fps, 20.0, 1e-9);
+  EXPECT_NEAR(info.time_origin_s, 1403636579.763555584, 1e-6);
+  // Names with no one number (two numbers, prefixes that differ): natural order, no times.
+  EXPECT_EQ(readAll(folder("mixed", {"b2_x.png", "a10.png", "a9.png", "b10_x.png"}), &info), (std::vector<int>{2, 1, 0, 3}));
+  EXPECT_TRUE(info.frame_offsets.empty());
+  EXPECT_EQ(info.fps, 0.0);
+  // Two names with one number: which comes first is not the reader's to guess.
+  folder("twice", {"1.png", "01.png", "2.png"});
+  try {
+    vision::FrameSource s((d / "twice").string());
+    ADD_FAILURE() << "two images with one number were taken";
+  } catch (const io::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("two images with one number"), std::string::npos) << e.what();
+  }
+  fs::remove_all(d);
 }
 
 TEST(TracksIo, MalformedFilesNameFileAndLine) {
@@ -227,6 +295,8 @@ TEST(TracksIo, MalformedFilesNameFileAndLine) {
       {"# rsfm-tracks 1\n# image_size 640 480\n# frames 0 3\n# dropped_frames 2-1\nframe,track,x,y\n0,1,2,3\n", ":4: dropped_frames needs frame numbers"},
       {"# rsfm-tracks 1\n# image_size 640 480\n# frames 0 3\n# dropped_frames 3\nframe,track,x,y\n0,1,2,3\n0,2,2,3\n1,1,2,3\n2,1,2,3\n", ":4: dropped frames 3-3 are not inside"},
       {"# rsfm-tracks 1\n# image_size 640 480\n# frames 0 3\n# dropped_frames 1-2\nframe,track,x,y\n0,1,2,3\n0,2,2,3\n2,1,2,3\n3,1,2,3\n", ":8: frame 2 is listed in dropped_frames"},
+      {"# rsfm-tracks 1\n# image_size 640 480\n# time_origin 1305031102.175304\n# frames 0 3\nframe,track,x,y\n0,1,2,3\n", ":3: time_origin needs '# fps'"},
+      {"# rsfm-tracks 1\n# image_size 640 480\n# fps 30\n# time_origin -4\n# frames 0 3\nframe,track,x,y\n0,1,2,3\n", ":4: time_origin needs one number"},
   };
   for (size_t i = 0; i < cases.size(); ++i) {
     const fs::path p = d / ("case" + std::to_string(i) + ".csv");

@@ -76,6 +76,49 @@ assert len(t) == 96 and not any(40 / 30 - 1e-9 < x < 43 / 30 + 1e-9 for x in t),
 assert e["poses"]["matched"] == 96 and e["ate"]["rmse_pct"] < 0.5, (e["poses"], e["ate"])
 print(f"a video that dropped frames 40-43: 96 poses at the truth's timestamps, ATE {e['ate']['rmse_pct']:.3f} % ({e['poses']['matched']} matched)")
 PY
+  # The same frames as a folder of images named by their times, as TUM RGB-D names them (seconds
+  # since 1970, the interval jittering by 0.7 ms), saved unpadded by ffmpeg first (1.png ...
+  # 100.png, which a plain sort of the names misordered), frames 40-43 missing: the rate from
+  # the names, the dropped frames found, the trajectory in the dataset's own times, matched to a
+  # truth shifted to them.
+  mkdir "$TMP/tum"
+  ffmpeg -loglevel error -i "$TMP/r/video.mp4" "$TMP/tum/%d.png"
+  /usr/bin/python3 - "$TMP/tum" "$TMP/r/truth" "$TMP/tumtruth" <<'PY'
+import json, os, sys
+d, truth, out = sys.argv[1:4]
+origin = 1305031102.175304
+for i in range(1, 101):
+    k = i - 1
+    if 40 <= k <= 43:
+        os.remove(f"{d}/{i}.png")
+    else:
+        os.rename(f"{d}/{i}.png", f"{d}/{origin + k / 30 + (0.0007 if k % 3 == 1 else 0):.6f}.png")
+os.makedirs(out)
+s = json.load(open(truth + "/summary.json"))
+s["time_origin_s"] = origin
+json.dump(s, open(out + "/summary.json", "w"))
+with open(out + "/trajectory.tum", "w") as f:
+    for l in open(truth + "/trajectory.tum"):
+        if not l.startswith("#"):
+            v = l.split()
+            f.write(" ".join([repr(origin + float(v[0]))] + v[1:]) + "\n")
+PY
+  "$RSFM" run "$TMP/tum" --out "$TMP/tumrun" --quiet --no-plots --no-overlay || { echo "FAIL run on a TUM-named folder"; exit 1; }
+  for h in "# dropped_frames 40-43" "# frames 0 99" "# fps 30" "# time_origin 1305031102.175304"; do
+    grep -qx "$h" "$TMP/tumrun/tracks.csv" || { echo "FAIL tracks.csv of a TUM-named folder lacks '$h': $(grep '^#' "$TMP/tumrun/tracks.csv" | tr '\n' ' ')"; exit 1; }
+  done
+  "$RSFM" estimate --tracks "$TMP/tumrun/tracks.csv" --out "$TMP/tumest" --quiet --no-plots
+  cmp -s "$TMP/tumrun/trajectory.tum" "$TMP/tumest/trajectory.tum" || { echo "FAIL estimate on the TUM folder's tracks.csv differs"; exit 1; }
+  "$RSFM" evaluate --estimate "$TMP/tumrun" --truth "$TMP/tumtruth" >/dev/null
+  /usr/bin/python3 - "$TMP/tumrun" <<'PY' || { echo "FAIL a TUM-named folder"; exit 1; }
+import json, sys
+s, e = json.load(open(sys.argv[1] + "/summary.json")), json.load(open(sys.argv[1] + "/evaluation.json"))
+t = [float(l.split()[0]) for l in open(sys.argv[1] + "/trajectory.tum") if not l.startswith("#")]
+assert s["fps"] == 30 and s["time_origin_s"] == 1305031102.175304 and s["tracking"]["dropped_frames"] == 4, (s["fps"], s["time_origin_s"])
+assert len(t) == 96 and abs(t[0] - 1305031102.175304) < 1e-6, (len(t), t[0])
+assert e["poses"]["matched"] == 96 and e["ate"]["rmse_pct"] < 0.5, (e["poses"], e["ate"])
+print(f"a TUM-named folder missing frames 40-43: 96 poses at the dataset's timestamps, ATE {e['ate']['rmse_pct']:.3f} %")
+PY
   # A phone video held upright: rotation metadata, which OpenCV's reader applies (turning the
   # frames clockwise by 90 deg), so the sensor's rows are the image's columns and the rolling
   # shutter's readout goes left (docs/estimate.md section 6).

@@ -126,6 +126,7 @@ inline void writeCsvHeader(std::ostream& os, const char* magic, const ImageInfo&
   os << fmt::format("# image_size {} {}\n", image.width, image.height);
   os << fmt::format("# principal_point {} {}\n", image.cx, image.cy);
   if (image.fps > 0) os << fmt::format("# fps {}\n", image.fps);
+  if (image.fps > 0 && image.time_origin != 0) os << fmt::format("# time_origin {}\n", image.time_origin);
   if (image.readout_direction != ReadoutDirection::Down)
     os << "# readout_direction " << readoutDirectionName(image.readout_direction) << "\n";
   os << fmt::format("# frames {} {}\n", first_frame, first_frame + frames - 1);
@@ -143,6 +144,7 @@ struct CsvHeader {
   long long last_frame = 0;
   std::string source;
   bool version = false, size = false, pp = false, frames = false;
+  int time_origin_line = 0;  ///< the '# time_origin' line (0: none), checked against '# fps' at the end
   /// Frames of the range the file says are absent (tracks.csv's '# dropped_frames'): the reader
   /// that set it checks the range against the rows itself, net of them.
   bool has_absent_frames = false;
@@ -188,6 +190,13 @@ struct CsvHeader {
         throw inputError(file, ln, fmt::format("fps needs one number above 0 and at most {} (frames per second)",
                                                ImageInfo::kMaxFps));
       image.fps = v[0];
+    } else if (key == "time_origin") {
+      std::array<double, 1> v{};
+      if (!headerNumbers(ss, &v) || v[0] < 0 || v[0] > ImageInfo::kMaxTimeOrigin)
+        throw inputError(file, ln, fmt::format("time_origin needs one number from 0 to {:g} (seconds of frame 0)",
+                                               ImageInfo::kMaxTimeOrigin));
+      image.time_origin = v[0];
+      time_origin_line = ln;
     } else if (key == "readout_direction") {
       std::string name, extra;
       if (!(ss >> name) || (ss >> extra) || !parseReadoutDirection(name, &image.readout_direction))
@@ -207,6 +216,8 @@ struct CsvHeader {
     if (!version) throw inputError(file, ln, fmt::format("not an rsfm {} file (first line must be '# {} 1')", name(), magic));
     if (!size) throw inputError(file, ln, "missing '# image_size W H' header line");
     if (!frames) throw inputError(file, ln, "missing '# frames FIRST LAST' header line");
+    if (time_origin_line > 0 && !(image.fps > 0))
+      throw inputError(file, time_origin_line, "time_origin needs '# fps' (timestamps in seconds from it)");
     if (!pp) {
       image.cx = (image.width - 1) / 2.0;
       image.cy = (image.height - 1) / 2.0;

@@ -126,6 +126,12 @@ Summary readSummaryText(const std::string& text, const std::filesystem::path& fi
     if (!(*s.fps > 0) || *s.fps > ImageInfo::kMaxFps)
       bad(file, fmt::format("\"fps\" must be above 0 and at most {} (frames per second)", ImageInfo::kMaxFps));
   }
+  if (j.contains("time_origin_s") && !j.at("time_origin_s").is_null()) {
+    s.time_origin = number(file, j.at("time_origin_s"), "\"time_origin_s\"");
+    if (!(s.time_origin >= 0) || s.time_origin > ImageInfo::kMaxTimeOrigin)
+      bad(file, fmt::format("\"time_origin_s\" must be from 0 to {:g} (seconds)", ImageInfo::kMaxTimeOrigin));
+    if (!s.fps && s.time_origin != 0) bad(file, "\"time_origin_s\" needs \"fps\" (timestamps in seconds from it)");
+  }
   if (j.contains("radial_distortion") && !j.at("radial_distortion").is_null()) {
     const json& d = j.at("radial_distortion");
     if (!d.is_array() || d.size() != 2) bad(file, "\"radial_distortion\" must be [k1, k2]");
@@ -178,6 +184,7 @@ std::string summaryToJson(const Summary& s) {
   if (s.fps) {
     o["fps"] = *s.fps;
     o["timestamps"] = "seconds";
+    if (s.time_origin != 0) o["time_origin_s"] = s.time_origin;
   }
   if (s.distortion) o["radial_distortion"] = {s.distortion->x(), s.distortion->y()};
   if (s.determinable) {

@@ -82,8 +82,8 @@ std::vector<TumPose> readTum(std::istream& in, const std::filesystem::path& file
 }
 
 void writeTum(std::ostream& os, const std::vector<TumPose>& poses) {
-  os << "# rsfm TUM trajectory: t tx ty tz qx qy qz qw; t = timestamp (seconds at the source's frame rate, else the "
-        "frame number; summary.json fps); p = camera centre in the "
+  os << "# rsfm TUM trajectory: t tx ty tz qx qy qz qw; t = timestamp (seconds at the source's frame rate from its "
+        "time origin, else the frame number; summary.json fps, time_origin_s); p = camera centre in the "
         "reference (frame 0) camera frame (x right, y down, z forward); q = Hamilton rotation "
         "camera -> reference\n";
   for (const TumPose& p : poses) {

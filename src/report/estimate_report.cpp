@@ -45,6 +45,8 @@ nlohmann::json summaryHead(const std::string& model, int frames, int first_frame
   // Timestamps of trajectory.tum: seconds at the source's frame rate, else frame numbers.
   j["fps"] = image.fps > 0 ? nlohmann::json(image.fps) : nlohmann::json(nullptr);
   j["timestamps"] = image.fps > 0 ? "seconds" : "frame";
+  // Images named by their timestamps: trajectory.tum's seconds count from frame 0's time.
+  j["time_origin_s"] = image.fps > 0 && image.time_origin != 0 ? nlohmann::json(image.time_origin) : nlohmann::json(nullptr);
   j["scale_px"] = scale_px;
   j["focal_px"] = scale_px / beta;
   j["focal_sd_px"] = scale_px * std::sqrt(std::max(0.0, var_beta)) / (beta * beta);

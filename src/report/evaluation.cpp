@@ -18,19 +18,20 @@ using namespace rsfm::io;  // the file formats the reports write
 namespace fs = std::filesystem;
 namespace {
 
-/// The poses sorted by timestamp, each timestamp scaled by `scale` (a frame number -> seconds:
-/// 1 / fps). Two poses with one timestamp are refused (issue 17: which would be matched?).
-std::vector<TumPose> byTime(const fs::path& file, std::vector<TumPose> poses, double scale) {
+/// The poses sorted by timestamp, each timestamp mapped to origin + t x scale (a frame number ->
+/// seconds: 1 / fps, and the other side's time origin). Two poses with one timestamp are refused
+/// (issue 17: which would be matched?).
+std::vector<TumPose> byTime(const fs::path& file, std::vector<TumPose> poses, double scale, double origin) {
   for (TumPose& p : poses) {
     if (!std::isfinite(p.t) || p.t < 0 || p.t > 1e12)
       throw InputError(fmt::format("{}: timestamp {} is not a time from 0 to 1e12", printable(file.string(), 300), p.t));
-    p.t *= scale;
+    p.t = origin + p.t * scale;
   }
   std::stable_sort(poses.begin(), poses.end(), [](const TumPose& a, const TumPose& b) { return a.t < b.t; });
   for (size_t i = 1; i < poses.size(); ++i)
     if (poses[i].t == poses[i - 1].t)
       throw InputError(fmt::format("{}: timestamp {} appears twice (two poses for one time)", printable(file.string(), 300),
-                                   poses[i].t / scale));
+                                   (poses[i].t - origin) / scale));
   return poses;
 }
 
@@ -100,23 +101,31 @@ Evaluation evaluateDirectories(const fs::path& estimate_dir, const fs::path& tru
   // one side is in seconds, the other's frame numbers become seconds at that side's rate.
   if (!(opt.t_max_diff >= 0) || !std::isfinite(opt.t_max_diff))
     throw InputError(fmt::format("t_max_diff must be a finite number >= 0, got {}", opt.t_max_diff));
-  double est_scale = 1.0, truth_scale = 1.0;
+  // A side in seconds may count from a time origin (images named by their timestamps): the
+  // other side's frame numbers are taken from it too.
+  double est_scale = 1.0, truth_scale = 1.0, est_origin = 0.0, truth_origin = 0.0;
   std::optional<double> fps = truth_sum.fps ? truth_sum.fps : est_sum.fps;
+  const auto fromOrigin = [](const Summary& s) {
+    return s.time_origin != 0 ? fmt::format(" from the time origin {}", s.time_origin) : std::string();
+  };
   if (est_sum.fps && !truth_sum.fps) {
     truth_scale = 1.0 / *est_sum.fps;
-    e.notes.push_back(fmt::format("the truth's timestamps are frame numbers: taken as seconds at the estimate's {} fps",
-                                  *est_sum.fps));
+    truth_origin = est_sum.time_origin;
+    e.notes.push_back(fmt::format("the truth's timestamps are frame numbers: taken as seconds at the estimate's {} fps{}",
+                                  *est_sum.fps, fromOrigin(est_sum)));
   } else if (truth_sum.fps && !est_sum.fps) {
     est_scale = 1.0 / *truth_sum.fps;
-    e.notes.push_back(fmt::format("the estimate's timestamps are frame numbers: taken as seconds at the truth's {} fps",
-                                  *truth_sum.fps));
+    est_origin = truth_sum.time_origin;
+    e.notes.push_back(fmt::format("the estimate's timestamps are frame numbers: taken as seconds at the truth's {} fps{}",
+                                  *truth_sum.fps, fromOrigin(truth_sum)));
   } else if (est_sum.fps && truth_sum.fps && std::abs(*est_sum.fps - *truth_sum.fps) > 1e-9 * *truth_sum.fps) {
     e.notes.push_back(fmt::format("frame rates differ: estimate {} fps, truth {} fps (associated by time)", *est_sum.fps,
                                   *truth_sum.fps));
   }
   e.timestamps = fps ? "seconds" : "frame";
   e.t_max_diff = opt.t_max_diff;
-  const std::vector<TumPose> em = byTime(et, est_poses, est_scale), tm = byTime(tt, truth_poses, truth_scale);
+  const std::vector<TumPose> em = byTime(et, est_poses, est_scale, est_origin),
+                               tm = byTime(tt, truth_poses, truth_scale, truth_origin);
   e.estimate_poses = static_cast<int>(em.size());
   e.truth_poses = static_cast<int>(tm.size());
 

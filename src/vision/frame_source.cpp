@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <limits>
+#include <numeric>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
@@ -53,7 +54,109 @@ bool validPattern(const std::string& p) {
   return conversions == 1;
 }
 
+/// An image name's stem split as <prefix><digits[.digits]><suffix> (e.g. "frame_", "0017", "", ""), neither
+/// prefix nor suffix holding a digit; false when the stem has no such one number.
+struct NameNumber {
+  std::string prefix, integer, fraction, suffix;  // fraction: the digits after '.', may be empty
+};
+bool splitNameNumber(const std::string& stem, NameNumber* n) {
+  const auto digit = [](char c) { return c >= '0' && c <= '9'; };
+  const std::size_t a = std::find_if(stem.begin(), stem.end(), digit) - stem.begin();
+  if (a == stem.size()) return false;
+  std::size_t b = a;
+  while (b < stem.size() && digit(stem[b])) ++b;
+  std::size_t e = b;
+  if (b + 1 < stem.size() && stem[b] == '.' && digit(stem[b + 1])) {
+    e = b + 1;
+    while (e < stem.size() && digit(stem[e])) ++e;
+  }
+  if (std::any_of(stem.begin() + static_cast<long>(e), stem.end(), digit)) return false;
+  n->prefix = stem.substr(0, a);
+  n->integer = stem.substr(a, b - a);
+  n->fraction = e > b ? stem.substr(b + 1, e - b - 1) : std::string();
+  n->suffix = stem.substr(e);
+  return true;
+}
+
+/// Compares two runs of decimal digits as numbers (any length: leading zeros skipped, then the
+/// length, then the digits).
+int compareDigits(const std::string& a, const std::string& b) {
+  const std::size_t za = std::min(a.find_first_not_of('0'), a.size()), zb = std::min(b.find_first_not_of('0'), b.size());
+  const std::size_t la = a.size() - za, lb = b.size() - zb;
+  if (la != lb) return la < lb ? -1 : 1;
+  const int c = a.compare(za, la, b, zb, lb);
+  return c < 0 ? -1 : (c > 0 ? 1 : 0);
+}
+
+/// Natural order: runs of digits compared as numbers, the rest as characters; equal so far, the
+/// plain comparison decides (img01 and img1 keep one order).
+bool naturalLess(const std::string& a, const std::string& b) {
+  const auto digit = [](char c) { return c >= '0' && c <= '9'; };
+  std::size_t i = 0, j = 0;
+  while (i < a.size() && j < b.size()) {
+    if (digit(a[i]) && digit(b[j])) {
+      std::size_t i2 = i, j2 = j;
+      while (i2 < a.size() && digit(a[i2])) ++i2;
+      while (j2 < b.size() && digit(b[j2])) ++j2;
+      if (const int c = compareDigits(a.substr(i, i2 - i), b.substr(j, j2 - j)); c != 0) return c < 0;
+      i = i2;
+      j = j2;
+    } else {
+      if (a[i] != b[j]) return a[i] < b[j];
+      ++i;
+      ++j;
+    }
+  }
+  if ((i < a.size()) != (j < b.size())) return j < b.size();
+  return a < b;
+}
+
 }  // namespace
+
+NamedFrames orderImageFiles(std::vector<fs::path> files) {
+  NamedFrames out;
+  std::vector<NameNumber> nums(files.size());
+  bool numbered = !files.empty();
+  for (std::size_t i = 0; i < files.size() && numbered; ++i)
+    numbered = splitNameNumber(files[i].stem().string(), &nums[i]) && nums[i].prefix == nums[0].prefix &&
+               nums[i].suffix == nums[0].suffix && files[i].extension() == files[0].extension();
+  if (!numbered) {
+    std::sort(files.begin(), files.end(), [](const fs::path& a, const fs::path& b) { return naturalLess(a.filename().string(), b.filename().string()); });
+    out.files = std::move(files);
+    return out;
+  }
+  std::vector<std::size_t> order(files.size());
+  std::iota(order.begin(), order.end(), 0);
+  // By the number: the integer parts as numbers, then the fractions digit by digit.
+  const auto cmp = [&](std::size_t x, std::size_t y) {
+    if (const int c = compareDigits(nums[x].integer, nums[y].integer); c != 0) return c;
+    std::string fx = nums[x].fraction, fy = nums[y].fraction;
+    const std::size_t w = std::max(fx.size(), fy.size());
+    fx.resize(w, '0');
+    fy.resize(w, '0');
+    const int c = fx.compare(fy);
+    return c < 0 ? -1 : (c > 0 ? 1 : 0);
+  };
+  std::sort(order.begin(), order.end(), [&](std::size_t x, std::size_t y) { return cmp(x, y) < 0; });
+  for (std::size_t i = 1; i < order.size(); ++i)
+    if (cmp(order[i - 1], order[i]) == 0)
+      throw io::InputError(fmt::format("{} and {}: two images with one number in their names (which comes first?)",
+                                       io::printable(files[order[i - 1]].string(), 300),
+                                       io::printable(files[order[i]].string(), 300)));
+  for (std::size_t i : order) out.files.push_back(files[i]);
+  const bool fractional = std::any_of(nums.begin(), nums.end(), [](const NameNumber& n) { return !n.fraction.empty(); });
+  // Long double carries a 19-digit integer exactly (64-bit mantissa): nanoseconds since 1970.
+  const auto value = [&](std::size_t i) {
+    return std::strtold((nums[i].integer + (nums[i].fraction.empty() ? "" : "." + nums[i].fraction)).c_str(), nullptr);
+  };
+  const long double first = value(order[0]);
+  const bool nanoseconds = !fractional && first >= 1e17L;
+  out.kind = fractional || nanoseconds ? TimeKind::Seconds : TimeKind::FrameNumbers;
+  const long double unit = nanoseconds ? 1e-9L : 1.0L;
+  for (std::size_t i : order) out.times.push_back(static_cast<double>((value(i) - first) * unit));
+  if (out.kind == TimeKind::Seconds) out.origin_s = static_cast<double>(first * unit);
+  return out;
+}
 
 FrameSource::FrameSource(const std::string& input) : input_(input) {
   // FFmpeg's own decoder chatter ("decode_slice_header error") is not ours to print; decode
@@ -83,7 +186,11 @@ FrameSource::FrameSource(const std::string& input) : input_(input) {
     for (const auto& e : fs::directory_iterator(input, ec))
       if (e.is_regular_file() && isImageFile(e.path())) files_.push_back(e.path());
     if (files_.empty()) throw inputError(input, 0, "folder contains no images (png, jpg, pgm, ppm, bmp, tif)");
-    std::sort(files_.begin(), files_.end());
+    NamedFrames named = orderImageFiles(std::move(files_));
+    files_ = std::move(named.files);
+    time_kind_ = named.kind;
+    file_times_ = std::move(named.times);
+    time_origin_ = named.origin_s;
     count_ = static_cast<int>(files_.size());
     return;
   }
@@ -91,6 +198,7 @@ FrameSource::FrameSource(const std::string& input) : input_(input) {
     throw inputError(input, 0, "compressed file: decompress it first (e.g. zcat FILE.gz > FILE)");
   if (isImageFile(input)) throw inputError(input, 0, "a single image is not a sequence (give a folder or a pattern)");
   kind_ = Kind::Video;
+  time_kind_ = TimeKind::Seconds;
   cap_ = std::make_unique<cv::VideoCapture>(input, cv::CAP_FFMPEG);
   if (!cap_->isOpened()) throw inputError(input, 0, "cannot be opened as a video");
   const double n = cap_->get(cv::CAP_PROP_FRAME_COUNT);
@@ -136,7 +244,7 @@ bool FrameSource::read(cv::Mat* img) {
     const double ms = cap_->get(cv::CAP_PROP_POS_MSEC);
     time_s_ = std::isfinite(ms) ? ms / 1000.0 : std::nan("");
   } else {
-    time_s_ = std::nan("");
+    time_s_ = static_cast<std::size_t>(index_) < file_times_.size() ? file_times_[static_cast<std::size_t>(index_)] : std::nan("");
   }
   if (index_ == 0) {
     size_ = img->size();
@@ -184,7 +292,7 @@ SourceInfo forEachFrame(const std::string& input, FrameRange range, const std::f
   int used = 0;
   std::vector<double> times;  // of every frame decoded, from the stream's first
   while (src.read(&img)) {
-    times.push_back(src.timeSeconds());
+    times.push_back(src.time());
     // Every frame has the first one's size (FrameSource::read): one check covers them all.
     if (src.index() == 0 && std::min(img.cols, img.rows) < min_size.min_side)
       throw io::InputError(fmt::format("{}: frames are {}x{} px; {} at least {}x{}", io::printable(input, 300), img.cols,
@@ -204,15 +312,24 @@ SourceInfo forEachFrame(const std::string& input, FrameRange range, const std::f
     throw io::InputError(fmt::format("{}: the frame range ends at {} but the input has only {} frames", input, range.last,
                                      src.index() + 1));
   const double stated = src.fpsKnown() ? src.fps() : 0.0;
-  SourceInfo info{stated, src.rotation(), {}, stated};
+  SourceInfo info{stated, src.rotation(), {}, stated, src.timeOrigin()};
   double interval = 0;
   // Up to the last frame used (a frame read past the range is not ours).
   const int last_used = range.last >= 0 ? std::min(src.index(), range.last) : src.index();
   times.resize(static_cast<size_t>(last_used + 1));
   if (std::vector<int> all = droppedFrameOffsets(times, &interval); !all.empty())
     info.frame_offsets.assign(all.begin() + range.first, all.end());
-  if (!info.frame_offsets.empty() && interval > 0 && 1.0 / interval <= ImageInfo::kMaxFps)
-    info.fps = std::round(1e6 / interval) / 1e6;  // the timestamps' millisecond rounding: 30, not 30.000000000000007
+  // The rate: a video's timestamps give it when frames were dropped (the container's average
+  // counts the drops); images named in seconds give it always (nothing else states one). Image
+  // names that number the frames give no rate.
+  const bool named_seconds = src.timeKind() == TimeKind::Seconds && !src.fpsKnown();
+  const auto rounded = [](double rate) { return std::round(rate * 1e6) / 1e6; };  // 30, not 30.000000000000007
+  if ((named_seconds || !info.frame_offsets.empty()) && src.timeKind() == TimeKind::Seconds && interval > 0 &&
+      1.0 / interval <= ImageInfo::kMaxFps)
+    info.fps = rounded(1.0 / interval);
+  if (named_seconds && info.fps > 0 && last_used > 0 && times[static_cast<size_t>(last_used)] > times[0])
+    info.stated_fps = rounded(last_used / (times[static_cast<size_t>(last_used)] - times[0]));
+  if (info.fps == 0) info.time_origin_s = 0;  // an origin only for timestamps in seconds
   return info;
 }
 

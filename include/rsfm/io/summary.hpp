@@ -49,6 +49,9 @@ struct Summary {
   /// The frame rate the trajectory's timestamps are in (seconds = frame / fps); unset: the
   /// timestamps are frame numbers (docs/outputs.md, docs/evaluate.md).
   std::optional<double> fps;
+  /// With fps: the time of frame 0 in seconds (`time_origin_s`; images named by their
+  /// timestamps), the timestamps being time_origin + frame / fps; 0 when absent.
+  double time_origin = 0.0;
   std::vector<int> plane_visible_frames;        ///< truth: frames in which each plane is visible (may be empty)
   std::optional<Eigen::Vector2d> distortion;    ///< radial (k1, k2), OpenCV's convention
   std::optional<Determinable> determinable;     ///< truth: what the sequence determines

@@ -40,16 +40,22 @@ struct ImageInfo {
   /// The rolling shutter's readout direction in this image (tracks.csv's '# readout_direction';
   /// absent: Down). The tracker sets it from a video's rotation.
   ReadoutDirection readout_direction = ReadoutDirection::Down;
+  /// The time of the stream's first frame (frame number 0), seconds, when the source gives one
+  /// (images named by their timestamps, docs/tracks.md "Image folders"; tracks.csv's
+  /// '# time_origin'); 0 otherwise. Only with fps > 0.
+  double time_origin = 0.0;
   /// The largest frame rate rsfm takes from a video or a file (frames per second).
   static constexpr double kMaxFps = 1000.0;
+  /// The largest time origin rsfm takes (seconds; `rsfm evaluate` reads timestamps up to it).
+  static constexpr double kMaxTimeOrigin = 1e11;
   /// A width x height image with the default principal point, the image centre.
   static ImageInfo centred(int width, int height) { return {width, height, (width - 1) / 2.0, (height - 1) / 2.0}; }
   /// Where the readout reaches the point `px`: its offset along readout_direction from the
   /// readout's middle, over the image's extent that way, in [-1/2, 1/2) (0 without a size).
   double readoutOffset(const Eigen::Vector2d& px) const;
   /// The timestamp of frame `frame` (frame numbers of the input, the first frame 0): seconds,
-  /// frame / fps, when the frame rate is known, else the frame number itself.
-  double timestamp(int frame) const { return fps > 0 ? frame / fps : static_cast<double>(frame); }
+  /// time_origin + frame / fps, when the frame rate is known, else the frame number itself.
+  double timestamp(int frame) const { return fps > 0 ? time_origin + frame / fps : static_cast<double>(frame); }
 };
 
 /// One tracked feature in one frame.

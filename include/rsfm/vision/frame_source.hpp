@@ -1,6 +1,7 @@
 #pragma once
 // Frames from a video file, an image-sequence pattern (printf style, e.g. frames/img%04d.png) or
-// a folder of images (sorted by file name). Errors are InputError naming the file (and frame).
+// a folder of images (in the order of the numbers in their names, docs/tracks.md "Image
+// folders"). Errors are InputError naming the file (and frame).
 #include <opencv2/core.hpp>
 #include <opencv2/videoio.hpp>
 
@@ -17,6 +18,28 @@ struct FrameRange {
   int first = 0;
   int last = -1;
 };
+
+/// What FrameSource::time() counts.
+enum class TimeKind {
+  None,          ///< no time (a pattern; a folder whose names carry no one number)
+  Seconds,       ///< seconds: a video's presentation times; image names in seconds (TUM: 1305031102.175304.png) or nanoseconds (EuRoC, ROS: 1403636579763555584.png)
+  FrameNumbers,  ///< image names that number the frames (000123.png, frame_17.jpg): the unit is one frame
+};
+
+/// The order of image files in a folder and what their names say of time: when every name is
+/// `<prefix><number><suffix>` with one prefix and one suffix (neither holding a digit), the files
+/// are ordered by the number and `times` holds it (relative to the first file's; `origin_s` the
+/// first's in seconds when the kind is Seconds); else they are ordered by name with runs of
+/// digits compared as numbers (img2.png before img10.png) and the kind is None. A number with a
+/// fractional part is seconds, an integer of 1e17 or more nanoseconds (an epoch in ns), any other
+/// integer a frame number. Two files with one number throw InputError naming both.
+struct NamedFrames {
+  std::vector<std::filesystem::path> files;
+  TimeKind kind = TimeKind::None;
+  std::vector<double> times;  ///< per file, from the first (seconds or frames); empty with None
+  double origin_s = 0.0;      ///< the first file's time in seconds (Seconds only)
+};
+NamedFrames orderImageFiles(std::vector<std::filesystem::path> files);
 
 class FrameSource {
  public:
@@ -42,9 +65,14 @@ class FrameSource {
   /// rotation metadata, which OpenCV's FFmpeg reader applies (CAP_PROP_ORIENTATION_META with
   /// CAP_PROP_ORIENTATION_AUTO); 0 for images.
   int rotation() const { return rotation_; }
-  /// The presentation time of the frame last returned by read(), seconds from the stream's
-  /// start (a video's; NaN for images or when the container gives none).
-  double timeSeconds() const { return time_s_; }
+  /// The time of the frame last returned by read(), from the stream's first frame, in the unit
+  /// of timeKind(): a video's presentation time (seconds; NaN when the container gives none), a
+  /// folder's number from its image names (orderImageFiles); NaN for a pattern.
+  double time() const { return time_s_; }
+  TimeKind timeKind() const { return time_kind_; }
+  /// The stream's first frame's time in seconds where the names give it (a folder of images
+  /// named by their timestamps), else 0: the time `time()` counts from.
+  double timeOrigin() const { return time_origin_; }
 
  private:
   enum class Kind { Video, Pattern, Folder } kind_ = Kind::Video;
@@ -57,6 +85,9 @@ class FrameSource {
   bool fps_known_ = false;
   int rotation_ = 0;
   double time_s_ = 0.0;
+  TimeKind time_kind_ = TimeKind::None;
+  std::vector<double> file_times_;  // Folder: orderImageFiles' times
+  double time_origin_ = 0.0;
   cv::Size size_;
 };
 
@@ -87,8 +118,12 @@ struct SourceInfo {
   /// range's first/last stay decoded frames' indices.
   std::vector<int> frame_offsets;
   /// The rate the source states (FrameSource::fpsKnown), else 0, whatever the timestamps say: for
-  /// a consumer that keeps the decoded numbering (the patch tracker).
+  /// a consumer that keeps the decoded numbering (the patch tracker). For images named by their
+  /// timestamps, the average rate (frames - 1 over the span), as a container states it.
   double stated_fps = 0.0;
+  /// The stream's first frame's time in seconds (FrameSource::timeOrigin): the timestamps'
+  /// origin, 0 but for images named by their timestamps.
+  double time_origin_s = 0.0;
 };
 
 /// The frames a video dropped, from its frames' timestamps (seconds, in order): each frame's
