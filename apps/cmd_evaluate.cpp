@@ -21,7 +21,9 @@ void addEvaluateCommands(CLI::App& app, std::vector<Command>& commands) {
   };
   auto st = std::make_shared<EvalCli>();
   ev->add_option("--estimate", st->estimate, "estimate directory (trajectory.tum, summary.json)")->required();
-  ev->add_option("--truth", st->truth, "truth directory (trajectory.tum, summary.json)")->required();
+  ev->add_option("--truth", st->truth,
+                 "truth directory (trajectory.tum, summary.json), or a TUM trajectory file in seconds (a dataset's "
+                 "ground truth, e.g. TUM RGB-D's groundtruth.txt: camera poses only)")->required();
   ev->add_option("--out", st->out, "output directory for evaluation.json and evaluation.md (default: the estimate's)");
   ev->add_option("--rpe-delta", st->o.rpe_delta, "RPE frame distance (frames)")->capture_default_str();
   ev->add_option("--t-max-diff", st->o.t_max_diff,

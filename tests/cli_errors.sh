@@ -439,6 +439,11 @@ if "$RSFM" evaluate --estimate "$E17" --truth "$T" --out "$I17/ev" >"$TMP/out.tx
 else
   fail=$((fail + 1)); echo "FAIL frame numbers against seconds: $(cat "$TMP/out.txt" "$TMP/err.txt")"
 fi
+# A bare TUM trajectory as the truth (a dataset's groundtruth.txt) is in seconds: an estimate in
+# frame numbers cannot be matched to it.
+check "evaluate: bare truth file, estimate in frames" 2 "" -- evaluate --estimate "$E17" --truth "$T/trajectory.tum" --out "$I17/ev"
+grep -q "is in seconds, and the estimate's timestamps are frame numbers" "$TMP/err.txt" ||
+  { fail=$((fail + 1)); echo "FAIL bare truth file message: $(cat "$TMP/err.txt")"; }
 cp "$T/summary.json" "$E17/"
 S17="$I17/still"
 mkdir -p "$S17"

@@ -87,16 +87,34 @@ Evaluation evaluateDirectories(const fs::path& estimate_dir, const fs::path& tru
   e.estimate_dir = estimate_dir;
   e.truth_dir = truth_dir;
   e.rpe_delta = opt.rpe_delta;
-  for (const fs::path& d : {estimate_dir, truth_dir}) {
-    std::error_code ec;
-    if (!fs::is_directory(d, ec)) throw InputError(d.string() + ": no such directory");
-  }
-  const fs::path et = estimate_dir / "trajectory.tum", tt = truth_dir / "trajectory.tum";
+  std::error_code ec;
+  if (!fs::is_directory(estimate_dir, ec)) throw InputError(estimate_dir.string() + ": no such directory");
+  // The truth: a directory as rsfm writes one, or a bare TUM trajectory file (a dataset's ground
+  // truth, e.g. TUM RGB-D's groundtruth.txt), whose timestamps are seconds by the format.
+  const bool truth_file = fs::is_regular_file(truth_dir, ec);
+  if (!truth_file && !fs::is_directory(truth_dir, ec))
+    throw InputError(truth_dir.string() + ": no such directory or TUM trajectory file");
+  const fs::path et = estimate_dir / "trajectory.tum", tt = truth_file ? truth_dir : truth_dir / "trajectory.tum";
   const fs::path es = estimate_dir / "summary.json", ts = truth_dir / "summary.json";
   const auto est_poses = readTum(et);
   const auto truth_poses = readTum(tt);
   const Summary est_sum = readSummary(es);
-  const Summary truth_sum = readSummary(ts);
+  Summary truth_sum;
+  if (truth_file) {
+    if (!est_sum.fps)
+      throw InputError(fmt::format("{}: a truth trajectory file without summary.json is in seconds, and the estimate's "
+                                   "timestamps are frame numbers ({} states no fps): give the truth as a directory "
+                                   "whose summary.json states the rate",
+                                   printable(tt.string(), 300), printable(es.string(), 300)));
+    truth_sum.fps = est_sum.fps;  // seconds on both sides: associated as they are
+    truth_sum.width = est_sum.width;
+    truth_sum.height = est_sum.height;
+    truth_sum.principal_point_px = est_sum.principal_point_px;
+    e.notes.push_back("the truth is a bare TUM trajectory (no summary.json): its timestamps are seconds; no planes, "
+                      "focal length or scene size to compare");
+  } else {
+    truth_sum = readSummary(ts);
+  }
   // Timestamps: seconds when the summary states a frame rate (fps), else frame numbers. When only
   // one side is in seconds, the other's frame numbers become seconds at that side's rate.
   if (!(opt.t_max_diff >= 0) || !std::isfinite(opt.t_max_diff))

@@ -54,8 +54,10 @@ struct Evaluation {
 std::vector<std::pair<std::size_t, std::size_t>> associateByTime(const std::vector<double>& truth,
                                                                 const std::vector<double>& est, double max_diff);
 
-/// Reads both directories and computes every metric. Throws InputError on unreadable or invalid
-/// files and when fewer than 3 poses are associated by timestamp.
+/// Reads both directories and computes every metric. `truth_dir` may also be a bare TUM
+/// trajectory file (timestamps in seconds; the estimate must be in seconds too): poses only.
+/// Throws InputError on unreadable or invalid files and when fewer than 3 poses are associated
+/// by timestamp.
 Evaluation evaluateDirectories(const std::filesystem::path& estimate_dir, const std::filesystem::path& truth_dir,
                                const EvaluateOptions& opt);
 
