@@ -177,7 +177,7 @@ void addEstimateOptions(CLI::App* a, EstimateCli* e) {
   a->add_flag("!--no-new-tracks", f.add_new_tracks, "only tracks of the reference frame enter the plane models");
   a->add_option("--camera", e->camera_file,
                 "a calibrated camera (OpenCV FileStorage YAML/XML: camera_matrix, distortion_coefficients, image_width, "
-                "image_height): tracks undistorted, intrinsics known");
+                "image_height; or ROS camera_info, Kalibr or EuRoC YAML): tracks undistorted, intrinsics known");
   a->add_option("--principal-point", e->principal_point, "a known principal point X,Y (px), held")
       ->delimiter(',')
       ->expected(2);

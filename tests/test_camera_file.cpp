@@ -64,6 +64,58 @@ TEST(CameraFile, ReadsWhatCalibrationToolsAndRsfmWrite) {
   }
 }
 
+TEST(CameraFile, ReadsRosCameraInfoAndKalibrAndEurocYaml) {
+  using rsfm::vision::readCameraText;
+  // ROS camera_calibration's camera_info (no %YAML:1.0, plain rows/cols/data maps).
+  const auto ros = readCameraText(slurp(kCorpus / "ros_camera_info.yaml"), "ost.yaml");
+  EXPECT_EQ(ros.width, 640);
+  EXPECT_EQ(ros.height, 480);
+  EXPECT_DOUBLE_EQ(ros.fx, 521.25);
+  EXPECT_DOUBLE_EQ(ros.fy, 520.75);
+  EXPECT_DOUBLE_EQ(ros.cy, 244.125);
+  EXPECT_EQ(ros.distortion, (std::vector<double>{-0.125, 0.0625, 0.001, -0.002, 0.0}));
+  // EuRoC's sensor.yaml: intrinsics [fu, fv, cu, cv] and radial-tangential [k1, k2, p1, p2] at the
+  // top level, beside a 4 x 4 extrinsic spread over lines and a comment after a value.
+  const auto euroc = readCameraText(slurp(kCorpus / "euroc_sensor.yaml"), "sensor.yaml");
+  EXPECT_EQ(euroc.width, 752);
+  EXPECT_DOUBLE_EQ(euroc.fx, 455.5);
+  EXPECT_DOUBLE_EQ(euroc.fy, 454.25);
+  EXPECT_DOUBLE_EQ(euroc.cx, 370.125);
+  EXPECT_DOUBLE_EQ(euroc.cy, 245.5);
+  EXPECT_EQ(euroc.distortion, (std::vector<double>{-0.275, 0.0725, 0.0002, 1.5e-05}));
+  // Kalibr's camchain: the first camera (cam0), not the second; block-sequence extrinsics skipped.
+  const auto kalibr = readCameraText(slurp(kCorpus / "kalibr_camchain.yaml"), "camchain.yaml");
+  EXPECT_DOUBLE_EQ(kalibr.fx, 460.5);
+  EXPECT_DOUBLE_EQ(kalibr.cy, 246.5);
+  EXPECT_EQ(kalibr.distortion, (std::vector<double>{-0.25, 0.0625, 0.0005, -0.0005}));
+  // What rsfm cannot undistort, and broken files: refused, naming the file and the problem.
+  std::string camchain = slurp(kCorpus / "kalibr_camchain.yaml");
+  const auto replaced = [](std::string t, const std::string& from, const std::string& to) {
+    t.replace(t.find(from), from.size(), to);
+    return t;
+  };
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {replaced(camchain, "distortion_model: radtan", "distortion_model: equidistant"), "distortion model 'equidistant'"},
+      {replaced(camchain, "camera_model: pinhole", "camera_model: omni"), "camera model 'omni' is not a pinhole"},
+      {replaced(camchain, "intrinsics: [460.5, 459.5, 362.5, 246.5]", "intrinsics: [460.5, 459.5, 362.5]"), "[fu, fv, cu, cv]"},
+      {replaced(camchain, "intrinsics: [460.5, 459.5, 362.5, 246.5]", "intrinsics: [460.5, 400, 362.5, 246.5]"), "differ by more than 1 %"},
+      {replaced(camchain, "intrinsics: [460.5, 459.5, 362.5, 246.5]", "intrinsics: [460.5, 459.5, 362.5, 246.5"), "never closed"},
+      {replaced(camchain, "resolution: [752, 480]\n  rostopic: /cam0", "resolution: [752, x]\n  rostopic: /cam0"), "is not a number"},
+      {replaced(slurp(kCorpus / "ros_camera_info.yaml"), "data: [521.25, 0, 322.5, 0, 520.75, 244.125, 0, 0, 1]",
+                "data: [521.25, 0, 322.5, 0, 520.75, 244.125]"), "9 entries"},
+      {replaced(slurp(kCorpus / "ros_camera_info.yaml"), "image_width: 640", "image_width: 200"), "outside the 200x480 image"},
+  };
+  for (const auto& [text, expect] : bad) {
+    try {
+      readCameraText(text, "cam.yaml");
+      ADD_FAILURE() << expect << ": accepted";
+    } catch (const rsfm::io::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("cam.yaml: "), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(expect), std::string::npos) << e.what();
+    }
+  }
+}
+
 TEST(CameraFile, RefusesWhatOpenCvsParserCannotSurvive) {
   for (const char* name : {"finding_opencv_yaml_hang.yaml", "finding_opencv_xml_truncated_decl.xml",
                            "finding_opencv_xml_segv.xml", "finding_opencv_xml_split_tag.xml", "finding_huge_matrix.yaml", "finding_opencv_length_error.yaml"}) {

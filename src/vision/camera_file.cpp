@@ -3,6 +3,9 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cstdlib>
+#include <optional>
+#include <array>
 #include <cmath>
 #include <string_view>
 #include <vector>
@@ -56,6 +59,220 @@ int intNode(const cv::FileStorage& fs, const char* name, const std::filesystem::
 }
 
 CameraCalibration fromStorage(const cv::FileStorage& fs, const std::filesystem::path& file);
+
+/// The camera matrix's entries (row by row) into `c`, checked: positive, square pixels within
+/// 1 %, no skew, the principal point inside the image (c's size set before).
+void setCameraMatrix(CameraCalibration* c, const std::array<double, 9>& k, const std::string& what, const std::filesystem::path& file) {
+  for (double v : k)
+    if (!std::isfinite(v)) bad(file, what + " has a non-finite entry");
+  c->fx = k[0];
+  c->fy = k[4];
+  c->cx = k[2];
+  c->cy = k[5];
+  if (!(c->fx > 0) || !(c->fy > 0)) bad(file, fmt::format("focal lengths must be positive, got fx {}, fy {}", c->fx, c->fy));
+  if (std::abs(c->fx - c->fy) > 0.01 * c->focal())
+    bad(file, fmt::format("fx {} and fy {} differ by more than 1 %: rsfm models square pixels", c->fx, c->fy));
+  if (std::abs(k[1]) > 1e-6 * c->fx || k[3] != 0 || k[6] != 0 || k[7] != 0 || k[8] != 1)
+    bad(file, what + " must be [fx 0 cx; 0 fy cy; 0 0 1] (no skew)");
+  if (!(c->cx >= 0 && c->cx <= c->width - 1 && c->cy >= 0 && c->cy <= c->height - 1))
+    bad(file, fmt::format("principal point ({}, {}) outside the {}x{} image", c->cx, c->cy, c->width, c->height));
+}
+
+/// OpenCV-ordered distortion coefficients (k1, k2, p1, p2[, k3, ...]) into `c`, checked.
+void setDistortion(CameraCalibration* c, const std::vector<double>& d, const std::string& what, const std::filesystem::path& file) {
+  const std::size_t n = d.size();
+  if (n != 4 && n != 5 && n != 8 && n != 12 && n != 14)
+    bad(file, fmt::format("{} must have 4, 5, 8, 12 or 14 entries, got {}", what, n));
+  for (double v : d)
+    if (!std::isfinite(v)) bad(file, what + " has a non-finite entry");
+  c->distortion = d;
+}
+
+/// The YAML that ROS's camera_calibration (camera_info: `camera_matrix: {rows, cols, data}`,
+/// `distortion_model`, `distortion_coefficients: {..., data}`, `image_width`, `image_height`) and
+/// Kalibr / EuRoC (`camera_model`, `intrinsics: [fu, fv, cu, cv]`, `distortion_model`,
+/// `distortion_coeffs` or `distortion_coefficients: [k1, k2, p1, p2]`, `resolution: [w, h]`,
+/// at the top level (EuRoC's sensor.yaml) or under the first camera (Kalibr's camchain
+/// `cam0:`)) write, read without OpenCV's parser (which takes neither: no `%YAML:1.0`, no
+/// `!!opencv-matrix`). Block mappings by indentation, `key: value` scalars, flow sequences of
+/// numbers over one or more lines; `- ` items, anchors and other YAML are skipped or refused.
+struct PlainYaml {
+  std::vector<std::pair<std::string, std::string>> scalars;           // dotted path -> text
+  std::vector<std::pair<std::string, std::vector<double>>> sequences;  // dotted path -> numbers
+  const std::string* scalar(const std::string& k) const {
+    for (const auto& [key, v] : scalars)
+      if (key == k) return &v;
+    return nullptr;
+  }
+  const std::vector<double>* sequence(const std::string& k) const {
+    for (const auto& [key, v] : sequences)
+      if (key == k) return &v;
+    return nullptr;
+  }
+};
+
+PlainYaml parsePlainYaml(const std::string& text, const std::filesystem::path& file) {
+  PlainYaml y;
+  std::vector<std::pair<std::size_t, std::string>> parents;  // (indent, key) of open mappings
+  std::string seq_key, seq_text;
+  bool in_seq = false;
+  std::size_t pos = 0, ln = 0, seq_line = 0;
+  const auto numbers = [&](const std::string& body, std::size_t line) {
+    std::vector<double> out;
+    std::size_t i = 0;
+    while (i < body.size()) {
+      while (i < body.size() && (body[i] == ' ' || body[i] == '\t' || body[i] == ',')) ++i;
+      if (i >= body.size()) break;
+      const std::size_t j = body.find_first_of(" \t,", i);
+      const std::string tok = body.substr(i, j == std::string::npos ? std::string::npos : j - i);
+      char* end = nullptr;
+      const double v = std::strtod(tok.c_str(), &end);
+      if (tok.empty() || end != tok.c_str() + tok.size() || !std::isfinite(v))
+        bad(file, fmt::format("line {}: '{}' in a sequence is not a number", line, io::printable(tok, 40)));
+      out.push_back(v);
+      if (out.size() > 64) bad(file, fmt::format("line {}: a sequence of more than 64 numbers: not a camera", line));
+      i = j == std::string::npos ? body.size() : j;
+    }
+    return out;
+  };
+  while (pos <= text.size()) {
+    std::size_t end = text.find('\n', pos);
+    if (end == std::string::npos) end = text.size();
+    std::string line = text.substr(pos, end - pos);
+    pos = end + 1;
+    ++ln;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (const auto h = line.find('#'); h != std::string::npos && line.find('"') == std::string::npos) line.erase(h);
+    while (!line.empty() && (line.back() == ' ' || line.back() == '\t')) line.pop_back();
+    const std::size_t indent = line.find_first_not_of(' ');
+    if (indent == std::string::npos) continue;
+    std::string body = line.substr(indent);
+    if (in_seq) {
+      if (body.find(':') != std::string::npos) bad(file, fmt::format("line {}: a sequence '[' is never closed", seq_line));
+      const auto close = body.find(']');
+      seq_text += " " + body.substr(0, close);
+      if (close != std::string::npos) {
+        if (body.find_first_not_of(" \t", close + 1) != std::string::npos) bad(file, fmt::format("line {}: text after ']'", ln));
+        y.sequences.emplace_back(seq_key, numbers(seq_text, ln));
+        in_seq = false;
+      }
+      continue;
+    }
+    if (body == "---" || body == "..." || body.rfind("%YAML", 0) == 0 || body.rfind("- ", 0) == 0 || body == "-") continue;
+    const std::size_t colon = body.find(':');
+    if (colon == std::string::npos || colon == 0)
+      bad(file, fmt::format("line {}: '{}' is not 'key: value'", ln, io::printable(body, 40)));
+    const std::string key = body.substr(0, colon);
+    while (!parents.empty() && parents.back().first >= indent) parents.pop_back();
+    std::string path;
+    for (const auto& p : parents) path += p.second + ".";
+    path += key;
+    std::string value = body.substr(colon + 1);
+    const std::size_t vb = value.find_first_not_of(" \t");
+    value = vb == std::string::npos ? std::string() : value.substr(vb);
+    if (value.empty()) {
+      if (parents.size() >= 8) bad(file, fmt::format("line {}: mappings nested deeper than 8", ln));
+      parents.emplace_back(indent, key);
+    } else if (value[0] == '[') {
+      const auto close = value.find(']');
+      if (close == std::string::npos) {
+        in_seq = true;
+        seq_line = ln;
+        seq_key = path;
+        seq_text = value.substr(1);
+      } else {
+        if (value.find_first_not_of(" \t", close + 1) != std::string::npos) bad(file, fmt::format("line {}: text after ']'", ln));
+        y.sequences.emplace_back(path, numbers(value.substr(1, close - 1), ln));
+      }
+    } else {
+      if (value.size() >= 2 && (value[0] == '"' || value[0] == '\'') && value.back() == value[0]) value = value.substr(1, value.size() - 2);
+      y.scalars.emplace_back(path, value);
+    }
+  }
+  if (in_seq) bad(file, fmt::format("line {}: a sequence '[' is never closed", seq_line));
+  return y;
+}
+
+double plainNumber(const PlainYaml& y, const std::string& key, const std::filesystem::path& file) {
+  const std::string* v = y.scalar(key);
+  if (!v) bad(file, fmt::format("missing \"{}\"", key));
+  char* end = nullptr;
+  const double d = std::strtod(v->c_str(), &end);
+  if (v->empty() || end != v->c_str() + v->size() || !std::isfinite(d))
+    bad(file, fmt::format("\"{}\" is not a number: '{}'", key, io::printable(*v, 40)));
+  return d;
+}
+
+int plainSide(double v, const std::string& what, const std::filesystem::path& file) {
+  if (!(v >= 1 && v <= 65536) || v != std::floor(v)) bad(file, fmt::format("{} must be a positive integer, got {}", what, v));
+  return static_cast<int>(v);
+}
+
+/// A distortion model rsfm can undistort with OpenCV's (radial-tangential); a fisheye's is refused.
+void checkDistortionModel(const std::string* model, const std::filesystem::path& file) {
+  if (!model) return;
+  static const char* const kPlain[] = {"plumb_bob", "rational_polynomial", "radtan", "radial-tangential", "none", ""};
+  for (const char* m : kPlain)
+    if (*model == m) return;
+  bad(file, fmt::format("distortion model '{}' is not OpenCV's radial-tangential (plumb_bob, radtan): rsfm cannot undistort "
+                        "it; undistort the images first (a fisheye: cv::fisheye)",
+                        io::printable(*model, 40)));
+}
+
+/// ROS camera_info or Kalibr / EuRoC YAML; nullopt when `text` is neither (OpenCV's reader then).
+std::optional<CameraCalibration> fromPlainYaml(const std::string& text, const std::filesystem::path& file) {
+  // Only text that is not OpenCV's: no `!!opencv-matrix` and no `%YAML:` directive.
+  if (text.find("!!opencv") != std::string::npos || text.find("%YAML:") != std::string::npos) return std::nullopt;
+  const bool ros_like = text.find("camera_matrix:") != std::string::npos;
+  const bool kalibr_like = text.find("intrinsics:") != std::string::npos;
+  if (!ros_like && !kalibr_like) return std::nullopt;
+  const PlainYaml y = parsePlainYaml(text, file);
+  CameraCalibration c;
+  c.source = file.string();
+  if (const std::vector<double>* k = y.sequence("camera_matrix.data")) {  // ROS camera_info
+    c.width = plainSide(plainNumber(y, "image_width", file), "\"image_width\"", file);
+    c.height = plainSide(plainNumber(y, "image_height", file), "\"image_height\"", file);
+    if (k->size() != 9) bad(file, fmt::format("\"camera_matrix\" data must have 9 entries, got {}", k->size()));
+    std::array<double, 9> m{};
+    std::copy(k->begin(), k->end(), m.begin());
+    setCameraMatrix(&c, m, "\"camera_matrix\"", file);
+    checkDistortionModel(y.scalar("distortion_model"), file);
+    if (const std::vector<double>* d = y.sequence("distortion_coefficients.data"); d && !d->empty())
+      setDistortion(&c, *d, "\"distortion_coefficients\"", file);
+    return c;
+  }
+  // Kalibr / EuRoC: the top level, or the first mapping that holds `intrinsics` (camchain's cam0).
+  std::string prefix;
+  bool found = y.sequence("intrinsics") != nullptr;
+  for (std::size_t i = 0; i < y.sequences.size() && !found; ++i) {
+    const std::string& key = y.sequences[i].first;
+    const std::string tail = ".intrinsics";
+    if (key.size() > tail.size() && key.compare(key.size() - tail.size(), tail.size(), tail) == 0) {
+      prefix = key.substr(0, key.size() - tail.size() + 1);
+      found = true;
+    }
+  }
+  if (!found) {
+    if (ros_like) bad(file, "\"camera_matrix\" has no data sequence (ROS camera_info: rows, cols, data)");
+    return std::nullopt;
+  }
+  if (const std::string* model = y.scalar(prefix + "camera_model"); model && *model != "pinhole")
+    bad(file, fmt::format("camera model '{}' is not a pinhole: rsfm cannot undistort it", io::printable(*model, 40)));
+  const std::vector<double>& in = *y.sequence(prefix + "intrinsics");
+  if (in.size() != 4) bad(file, fmt::format("\"intrinsics\" must be [fu, fv, cu, cv], got {} numbers", in.size()));
+  const std::vector<double>* res = y.sequence(prefix + "resolution");
+  if (!res || res->size() != 2) bad(file, "missing \"resolution\": [width, height]");
+  c.width = plainSide((*res)[0], "\"resolution\" width", file);
+  c.height = plainSide((*res)[1], "\"resolution\" height", file);
+  setCameraMatrix(&c, {in[0], 0, in[2], 0, in[1], in[3], 0, 0, 1}, "\"intrinsics\"", file);
+  checkDistortionModel(y.scalar(prefix + "distortion_model"), file);
+  const std::vector<double>* d = y.sequence(prefix + "distortion_coeffs");
+  if (!d) d = y.sequence(prefix + "distortion_coefficients");
+  if (d && !d->empty()) setDistortion(&c, *d, "the distortion coefficients", file);
+  return c;
+}
+
+
 
 /// Checks YAML text line by line against what calibration files hold (cv::calibrateCamera tools,
 /// camera.yaml) before OpenCV's parser sees it: OpenCV 4.6's YAML FileStorage loops forever on
@@ -211,6 +428,8 @@ CameraCalibration readCameraText(const std::string& text, const std::filesystem:
       bad(file, fmt::format("not a text file (control byte 0x{:02x} at byte {})", c, i));
   }
   const auto first = text.find_first_not_of(" \t\r\n");
+  if (first != std::string::npos && text[first] != '<' && text[first] != '{')
+    if (std::optional<CameraCalibration> c = fromPlainYaml(text, file)) return *c;
   if (first != std::string::npos && text[first] == '<') {
     if (const std::string why = xmlProblem(text); !why.empty()) bad(file, "malformed XML: " + why);
   } else if (first != std::string::npos && text[first] == '{') {
@@ -247,28 +466,16 @@ CameraCalibration fromStorage(const cv::FileStorage& fs, const std::filesystem::
   if (K.rows != 3 || K.cols != 3) bad(file, fmt::format("\"camera_matrix\" must be 3x3, got {}x{}", K.rows, K.cols));
   for (int i = 0; i < 9; ++i)
     if (!std::isfinite(K.at<double>(i / 3, i % 3))) bad(file, "\"camera_matrix\" has a non-finite entry");
-  c.fx = K.at<double>(0, 0);
-  c.fy = K.at<double>(1, 1);
-  c.cx = K.at<double>(0, 2);
-  c.cy = K.at<double>(1, 2);
-  if (!(c.fx > 0) || !(c.fy > 0)) bad(file, fmt::format("focal lengths must be positive, got fx {}, fy {}", c.fx, c.fy));
-  if (std::abs(c.fx - c.fy) > 0.01 * c.focal())
-    bad(file, fmt::format("fx {} and fy {} differ by more than 1 %: rsfm models square pixels", c.fx, c.fy));
-  if (std::abs(K.at<double>(0, 1)) > 1e-6 * c.fx || K.at<double>(1, 0) != 0 || K.at<double>(2, 0) != 0 ||
-      K.at<double>(2, 1) != 0 || K.at<double>(2, 2) != 1)
-    bad(file, "\"camera_matrix\" must be [fx 0 cx; 0 fy cy; 0 0 1] (no skew)");
-  if (!(c.cx >= 0 && c.cx <= c.width - 1 && c.cy >= 0 && c.cy <= c.height - 1))
-    bad(file, fmt::format("principal point ({}, {}) outside the {}x{} image", c.cx, c.cy, c.width, c.height));
+  std::array<double, 9> k{};
+  for (int i = 0; i < 9; ++i) k[static_cast<std::size_t>(i)] = K.at<double>(i / 3, i % 3);
+  setCameraMatrix(&c, k, "\"camera_matrix\"", file);
   if (!fs["distortion_coefficients"].empty()) {
     const cv::Mat D = matrixNode(fs, "distortion_coefficients", file);
-    const int n = static_cast<int>(D.total());
-    if (!(D.rows == 1 || D.cols == 1) || (n != 4 && n != 5 && n != 8 && n != 12 && n != 14))
-      bad(file, fmt::format("\"distortion_coefficients\" must have 4, 5, 8, 12 or 14 entries, got {}x{}", D.rows, D.cols));
-    for (int i = 0; i < n; ++i) {
-      const double v = D.at<double>(i);
-      if (!std::isfinite(v)) bad(file, "\"distortion_coefficients\" has a non-finite entry");
-      c.distortion.push_back(v);
-    }
+    if (!(D.rows == 1 || D.cols == 1))
+      bad(file, fmt::format("\"distortion_coefficients\" must be one row or column, got {}x{}", D.rows, D.cols));
+    std::vector<double> d;
+    for (int i = 0; i < static_cast<int>(D.total()); ++i) d.push_back(D.at<double>(i));
+    setDistortion(&c, d, "\"distortion_coefficients\"", file);
   }
   if (!fs["rolling_shutter_readout"].empty()) {
     const double tau = realNode(fs, "rolling_shutter_readout", file);
