@@ -244,6 +244,12 @@ TEST(FrameSource, AFolderIsReadInTheOrderOfItsNamesNumbersWhichGiveTheTimes) {
   EXPECT_NEAR(info.fps, 6.0 / (0.375071 - 0.175304), 1e-5);
   EXPECT_NEAR(info.time_origin_s, 1305031102.175304, 1e-6);
   EXPECT_NEAR(info.stated_fps, 5.0 / (0.375071 - 0.175304), 1e-5);  // the average, as a container states it
+  {
+    const vision::FrameSource src(tum_dir);  // the overlay's rate: the average, not a stated one
+    EXPECT_NEAR(src.fps(), 5.0 / (0.375071 - 0.175304), 1e-6);
+    EXPECT_FALSE(src.fpsKnown());
+    EXPECT_EQ(src.timeKind(), vision::TimeKind::Seconds);
+  }
   // EuRoC's (and ROS's): nanoseconds since 1970, 20 frames/s, nothing dropped: the rate and
   // origin all the same, no offsets.
   std::vector<std::string> euroc;

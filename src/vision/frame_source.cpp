@@ -191,6 +191,11 @@ FrameSource::FrameSource(const std::string& input) : input_(input) {
     time_kind_ = named.kind;
     file_times_ = std::move(named.times);
     time_origin_ = named.origin_s;
+    // Images named by their times: their average rate for the videos rsfm writes of them (the
+    // overlay), not 30; still not a rate the source states (fpsKnown).
+    if (time_kind_ == TimeKind::Seconds && file_times_.size() > 1 && file_times_.back() > 0 &&
+        (file_times_.size() - 1) / file_times_.back() <= ImageInfo::kMaxFps)
+      fps_ = static_cast<double>(file_times_.size() - 1) / file_times_.back();
     count_ = static_cast<int>(files_.size());
     return;
   }

@@ -56,7 +56,8 @@ class FrameSource {
   int index() const { return index_; }
   /// Number of frames if known (video container's count or number of images), else -1.
   int countHint() const { return count_; }
-  /// Frames per second: the video's when its container states one, else 30 (for writing videos).
+  /// Frames per second: the video's when its container states one; for images named by their
+  /// times, their average rate; else 30 (for writing videos).
   double fps() const { return fps_; }
   /// Whether fps() is the source's own rate (a video that states it), not the default.
   bool fpsKnown() const { return fps_known_; }
