@@ -88,12 +88,28 @@ TEST(CameraFile, ReadsRosCameraInfoAndKalibrAndEurocYaml) {
   EXPECT_DOUBLE_EQ(kalibr.fx, 460.5);
   EXPECT_DOUBLE_EQ(kalibr.cy, 246.5);
   EXPECT_EQ(kalibr.distortion, (std::vector<double>{-0.25, 0.0625, 0.0005, -0.0005}));
-  // What rsfm cannot undistort, and broken files: refused, naming the file and the problem.
   std::string camchain = slurp(kCorpus / "kalibr_camchain.yaml");
   const auto replaced = [](std::string t, const std::string& from, const std::string& to) {
     t.replace(t.find(from), from.size(), to);
     return t;
   };
+  // A comment after a quoted value, and a '#' inside quotes, are read as YAML reads them.
+  const auto quoted = readCameraText(
+      replaced(slurp(kCorpus / "ros_camera_info.yaml"), "distortion_model: plumb_bob", "distortion_model: \"plumb_bob\"  # \"ROS\""),
+      "ost.yaml");
+  EXPECT_EQ(quoted.distortion.size(), 5u);
+  EXPECT_NO_THROW(readCameraText(replaced(camchain, "rostopic: /cam0/image_raw", "rostopic: '/cam0 #1'"), "camchain.yaml"));
+  // A file built to cost memory quadratic in its size (a long parent key copied into each of its
+  // children's paths): refused at its first long key, at once.
+  std::string bomb = "intrinsics: [1, 2, 3, 4]\n" + std::string(400000, 'a') + ":\n";
+  for (int i = 0; i < 100000; ++i) bomb += " b: 1\n";
+  try {
+    readCameraText(bomb, "bomb.yaml");
+    ADD_FAILURE() << "the long key was accepted";
+  } catch (const rsfm::io::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("longer than"), std::string::npos) << e.what();
+  }
+  // What rsfm cannot undistort, and broken files: refused, naming the file and the problem.
   const std::vector<std::pair<std::string, std::string>> bad = {
       {replaced(camchain, "distortion_model: radtan", "distortion_model: equidistant"), "distortion model 'equidistant'"},
       {replaced(camchain, "camera_model: pinhole", "camera_model: omni"), "camera model 'omni' is not a pinhole"},

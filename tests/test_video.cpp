@@ -262,6 +262,11 @@ TEST(FrameSource, AFolderIsReadInTheOrderOfItsNamesNumbersWhichGiveTheTimes) {
   EXPECT_EQ(readAll(folder("mixed", {"b2_x.png", "a10.png", "a9.png", "b10_x.png"}), &info), (std::vector<int>{2, 1, 0, 3}));
   EXPECT_TRUE(info.frame_offsets.empty());
   EXPECT_EQ(info.fps, 0.0);
+  // Seconds no timestamp can be (a date written as digits): ordered by the number, no time.
+  EXPECT_EQ(readAll(folder("dates", {"20230615123457.5.png", "20230615123456.25.png"}), &info), (std::vector<int>{1, 0}));
+  EXPECT_EQ(info.fps, 0.0);
+  EXPECT_EQ(info.time_origin_s, 0.0);
+  EXPECT_TRUE(info.frame_offsets.empty());
   // Two names with one number: which comes first is not the reader's to guess.
   folder("twice", {"1.png", "01.png", "2.png"});
   try {

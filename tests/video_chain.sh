@@ -116,6 +116,9 @@ assert s["fps"] == 30 and s["time_origin_s"] == 1305031102.175304 and s["trackin
 assert len(t) == 96 and abs(t[0] - 1305031102.175304) < 1e-6, (len(t), t[0])
 assert e["poses"]["matched"] == 96 and e["ate"]["rmse_pct"] < 0.5, (e["poses"], e["ate"])
 assert any("bare TUM trajectory" in n for n in e["notes"]), e["notes"]
+# The RPE's pairs are the video's (frame numbers from the estimate's grid, less the origin).
+v = json.load(open(sys.argv[1] + "/../droprun/evaluation.json"))
+assert e["rpe"]["pairs"] == v["rpe"]["pairs"] == 94, (e["rpe"], v["rpe"])
 print(f"a TUM-named folder missing frames 40-43: 96 poses at the dataset's timestamps, matched to a bare groundtruth.txt, ATE {e['ate']['rmse_pct']:.3f} % of the trajectory's extent")
 PY
   # A phone video held upright: rotation metadata, which OpenCV's reader applies (turning the

@@ -159,16 +159,25 @@ Evaluation evaluateDirectories(const fs::path& estimate_dir, const fs::path& tru
     const auto [i, j] = pairs[n];
     T.push_back(toPose(tm[i]));
     E.push_back(toPose(em[j]));
-    frames.push_back(fps ? std::llround(tm[i].t * *fps) : integral ? std::llround(tm[i].t) : static_cast<long long>(n));
+    // In seconds, the frame numbers come from the side on rsfm's uniform grid, less its origin:
+    // the truth's, or against a bare truth file (a dataset's own, jittered times) the estimate's.
+    frames.push_back(fps ? (truth_file ? std::llround((em[j].t - est_sum.time_origin) * *fps)
+                                       : std::llround((tm[i].t - (truth_sum.fps ? truth_sum.time_origin : truth_origin)) * *fps))
+                         : integral ? std::llround(tm[i].t) : static_cast<long long>(n));
   }
   if (!fps && !integral)
     e.notes.push_back("timestamps are neither seconds at a known frame rate nor frame numbers: the RPE's frame distance "
                       "counts matched poses");
   e.matched = static_cast<int>(frames.size());
   if (e.matched < 3)
-    throw InputError(fmt::format("{}: only {} pose{} match a timestamp of {} within {} {} (need at least 3; --t-max-diff)",
-                                 et.string(), e.matched, e.matched == 1 ? "" : "s", tt.string(), opt.t_max_diff,
-                                 fps ? "s" : "frames"));
+    throw InputError(fmt::format(
+        "{}: only {} pose{} match a timestamp of {} within {} {} (need at least 3; --t-max-diff){}", et.string(), e.matched,
+        e.matched == 1 ? "" : "s", tt.string(), opt.t_max_diff, fps ? "s" : "frames",
+        em.empty() || tm.empty() || (em.back().t >= tm.front().t && tm.back().t >= em.front().t)
+            ? std::string()
+            : fmt::format(": the times do not overlap, estimate {:.17g} to {:.17g}, truth {:.17g} to {:.17g} (a time origin "
+                          "on one side only? summary.json time_origin_s)",
+                          em.front().t, em.back().t, tm.front().t, tm.back().t)));
   // A Sim(3) alignment needs the camera centres of both trajectories to spread: name the file
   // whose centres do not (issue 17: a still truth was blamed on the estimate).
   for (const auto& [traj, file] : {std::pair{&E, &et}, std::pair{&T, &tt}}) {

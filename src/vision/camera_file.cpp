@@ -142,7 +142,21 @@ PlainYaml parsePlainYaml(const std::string& text, const std::filesystem::path& f
     pos = end + 1;
     ++ln;
     if (!line.empty() && line.back() == '\r') line.pop_back();
-    if (const auto h = line.find('#'); h != std::string::npos && line.find('"') == std::string::npos) line.erase(h);
+    if (line.size() > 4096) bad(file, fmt::format("line {}: longer than 4096 bytes: not a camera file", ln));
+    {  // A comment: '#' at the start or after a blank, outside quotes.
+      char quote = 0;
+      for (std::size_t i = 0; i < line.size(); ++i) {
+        const char ch = line[i];
+        if (quote) {
+          if (ch == quote) quote = 0;
+        } else if (ch == '"' || ch == '\'') {
+          quote = ch;
+        } else if (ch == '#' && (i == 0 || line[i - 1] == ' ' || line[i - 1] == '\t')) {
+          line.erase(i);
+          break;
+        }
+      }
+    }
     while (!line.empty() && (line.back() == ' ' || line.back() == '\t')) line.pop_back();
     const std::size_t indent = line.find_first_not_of(' ');
     if (indent == std::string::npos) continue;
@@ -150,7 +164,8 @@ PlainYaml parsePlainYaml(const std::string& text, const std::filesystem::path& f
     if (in_seq) {
       if (body.find(':') != std::string::npos) bad(file, fmt::format("line {}: a sequence '[' is never closed", seq_line));
       const auto close = body.find(']');
-      seq_text += " " + body.substr(0, close);
+      seq_text += ' ';
+      seq_text.append(body, 0, close == std::string::npos ? body.size() : close);
       if (close != std::string::npos) {
         if (body.find_first_not_of(" \t", close + 1) != std::string::npos) bad(file, fmt::format("line {}: text after ']'", ln));
         y.sequences.emplace_back(seq_key, numbers(seq_text, ln));
@@ -163,6 +178,9 @@ PlainYaml parsePlainYaml(const std::string& text, const std::filesystem::path& f
     if (colon == std::string::npos || colon == 0)
       bad(file, fmt::format("line {}: '{}' is not 'key: value'", ln, io::printable(body, 40)));
     const std::string key = body.substr(0, colon);
+    // Bounded: a calibration has a few dozen short keys; the paths below copy their parents'.
+    if (key.size() > 64) bad(file, fmt::format("line {}: a key longer than 64 characters: not a camera file", ln));
+    if (y.scalars.size() + y.sequences.size() >= 1000) bad(file, fmt::format("line {}: more than 1000 keys: not a camera file", ln));
     while (!parents.empty() && parents.back().first >= indent) parents.pop_back();
     std::string path;
     for (const auto& p : parents) path += p.second + ".";

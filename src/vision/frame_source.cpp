@@ -153,6 +153,12 @@ NamedFrames orderImageFiles(std::vector<fs::path> files) {
   const bool nanoseconds = !fractional && first >= 1e17L;
   out.kind = fractional || nanoseconds ? TimeKind::Seconds : TimeKind::FrameNumbers;
   const long double unit = nanoseconds ? 1e-9L : 1.0L;
+  // Seconds beyond what a timestamp can be (a date written as digits, 20230615123456.789; an
+  // epoch in milliseconds with a fraction): the names give the order, not a time.
+  if (out.kind == TimeKind::Seconds && !(first * unit <= ImageInfo::kMaxTimeOrigin)) {
+    out.kind = TimeKind::None;
+    return out;
+  }
   for (std::size_t i : order) out.times.push_back(static_cast<double>((value(i) - first) * unit));
   if (out.kind == TimeKind::Seconds) out.origin_s = static_cast<double>(first * unit);
   return out;
@@ -327,7 +333,7 @@ SourceInfo forEachFrame(const std::string& input, FrameRange range, const std::f
   // The rate: a video's timestamps give it when frames were dropped (the container's average
   // counts the drops); images named in seconds give it always (nothing else states one). Image
   // names that number the frames give no rate.
-  const bool named_seconds = src.timeKind() == TimeKind::Seconds && !src.fpsKnown();
+  const bool named_seconds = src.timesFromNames() && src.timeKind() == TimeKind::Seconds;
   const auto rounded = [](double rate) { return std::round(rate * 1e6) / 1e6; };  // 30, not 30.000000000000007
   if ((named_seconds || !info.frame_offsets.empty()) && src.timeKind() == TimeKind::Seconds && interval > 0 &&
       1.0 / interval <= ImageInfo::kMaxFps)

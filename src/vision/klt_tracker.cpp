@@ -433,7 +433,7 @@ Tracks trackInput(const std::string& input, const TrackerOptions& options, Frame
   const std::vector<int>& numbers = source.frame_offsets;
   if (stats)
     *stats = {std::max(0L, static_cast<long>(t.numFrames()) - 1), tracker.exposureChanges(),
-              numbers.empty() ? 0 : numbers.back() - numbers.front() + 1 - t.numFrames()};
+              numbers.empty() ? 0L : static_cast<long>(numbers.back()) - numbers.front() + 1 - t.numFrames()};
   // A video that dropped frames: each frame keeps the number its timestamp gives (the dropped
   // ones are absent: tracks.csv's '# dropped_frames', docs/tracks.md).
   if (!numbers.empty()) t.frame_numbers = numbers;

@@ -32,7 +32,9 @@ enum class TimeKind {
 /// first's in seconds when the kind is Seconds); else they are ordered by name with runs of
 /// digits compared as numbers (img2.png before img10.png) and the kind is None. A number with a
 /// fractional part is seconds, an integer of 1e17 or more nanoseconds (an epoch in ns), any other
-/// integer a frame number. Two files with one number throw InputError naming both.
+/// integer a frame number (epochs in ms or us too: the order and the gaps, no rate); seconds
+/// beyond ImageInfo::kMaxTimeOrigin are no time (kind None, ordered by the number). Two files
+/// with one number throw InputError naming both.
 struct NamedFrames {
   std::vector<std::filesystem::path> files;
   TimeKind kind = TimeKind::None;
@@ -71,6 +73,8 @@ class FrameSource {
   /// folder's number from its image names (orderImageFiles); NaN for a pattern.
   double time() const { return time_s_; }
   TimeKind timeKind() const { return time_kind_; }
+  /// Whether the times come from the images' names (a folder; orderImageFiles), not a video.
+  bool timesFromNames() const { return kind_ == Kind::Folder && time_kind_ != TimeKind::None; }
   /// The stream's first frame's time in seconds where the names give it (a folder of images
   /// named by their timestamps), else 0: the time `time()` counts from.
   double timeOrigin() const { return time_origin_; }
