@@ -100,15 +100,9 @@ TEST(CameraFile, ReadsRosCameraInfoAndKalibrAndEurocYaml) {
   EXPECT_EQ(quoted.distortion.size(), 5u);
   EXPECT_NO_THROW(readCameraText(replaced(camchain, "rostopic: /cam0/image_raw", "rostopic: '/cam0 #1'"), "camchain.yaml"));
   // A file built to cost memory quadratic in its size (a long parent key copied into each of its
-  // children's paths): refused at its first long key, at once.
+  // children's paths): refused at its first long key, at once (below).
   std::string bomb = "intrinsics: [1, 2, 3, 4]\n" + std::string(400000, 'a') + ":\n";
   for (int i = 0; i < 100000; ++i) bomb += " b: 1\n";
-  try {
-    readCameraText(bomb, "bomb.yaml");
-    ADD_FAILURE() << "the long key was accepted";
-  } catch (const rsfm::io::InputError& e) {
-    EXPECT_NE(std::string(e.what()).find("longer than"), std::string::npos) << e.what();
-  }
   // What rsfm cannot undistort, and broken files: refused, naming the file and the problem.
   const std::vector<std::pair<std::string, std::string>> bad = {
       {replaced(camchain, "distortion_model: radtan", "distortion_model: equidistant"), "distortion model 'equidistant'"},
@@ -120,6 +114,7 @@ TEST(CameraFile, ReadsRosCameraInfoAndKalibrAndEurocYaml) {
       {replaced(slurp(kCorpus / "ros_camera_info.yaml"), "data: [521.25, 0, 322.5, 0, 520.75, 244.125, 0, 0, 1]",
                 "data: [521.25, 0, 322.5, 0, 520.75, 244.125]"), "9 entries"},
       {replaced(slurp(kCorpus / "ros_camera_info.yaml"), "image_width: 640", "image_width: 200"), "outside the 200x480 image"},
+      {bomb, "longer than"},
   };
   for (const auto& [text, expect] : bad) {
     try {

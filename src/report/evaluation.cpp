@@ -107,9 +107,6 @@ Evaluation evaluateDirectories(const fs::path& estimate_dir, const fs::path& tru
                                    "whose summary.json states the rate",
                                    printable(tt.string(), 300), printable(es.string(), 300)));
     truth_sum.fps = est_sum.fps;  // seconds on both sides: associated as they are
-    truth_sum.width = est_sum.width;
-    truth_sum.height = est_sum.height;
-    truth_sum.principal_point_px = est_sum.principal_point_px;
     e.notes.push_back("the truth is a bare TUM trajectory (no summary.json): its timestamps are seconds; no planes, "
                       "focal length or scene size to compare");
   } else {
@@ -155,15 +152,19 @@ Evaluation evaluateDirectories(const fs::path& estimate_dir, const fs::path& tru
   const auto pairs = associateByTime(tt_s, et_s, opt.t_max_diff);
   bool integral = true;
   for (const auto& [i, j] : pairs) integral = integral && std::abs(tm[i].t - std::round(tm[i].t)) < 1e-6;
+  // In seconds, the frame numbers come from the side on rsfm's uniform grid, less its origin:
+  // the truth's, or against a bare truth file (a dataset's own, jittered times) the estimate's.
+  const double truth_grid_origin = truth_sum.fps ? truth_sum.time_origin : truth_origin;
   for (size_t n = 0; n < pairs.size(); ++n) {
     const auto [i, j] = pairs[n];
     T.push_back(toPose(tm[i]));
     E.push_back(toPose(em[j]));
-    // In seconds, the frame numbers come from the side on rsfm's uniform grid, less its origin:
-    // the truth's, or against a bare truth file (a dataset's own, jittered times) the estimate's.
-    frames.push_back(fps ? (truth_file ? std::llround((em[j].t - est_sum.time_origin) * *fps)
-                                       : std::llround((tm[i].t - (truth_sum.fps ? truth_sum.time_origin : truth_origin)) * *fps))
-                         : integral ? std::llround(tm[i].t) : static_cast<long long>(n));
+    if (!fps)
+      frames.push_back(integral ? std::llround(tm[i].t) : static_cast<long long>(n));
+    else if (truth_file)
+      frames.push_back(std::llround((em[j].t - est_sum.time_origin) * *fps));
+    else
+      frames.push_back(std::llround((tm[i].t - truth_grid_origin) * *fps));
   }
   if (!fps && !integral)
     e.notes.push_back("timestamps are neither seconds at a known frame rate nor frame numbers: the RPE's frame distance "
@@ -217,10 +218,11 @@ Evaluation evaluateDirectories(const fs::path& estimate_dir, const fs::path& tru
   e.focal_est = est_sum.focal_px;
   if (e.focal_truth && e.focal_est) e.focal_err_pct = 100.0 * (*e.focal_est - *e.focal_truth) / *e.focal_truth;
   if (!e.focal_est) e.notes.push_back("the estimate has no focal length (focal_px null)");
-  if (est_sum.width != truth_sum.width || est_sum.height != truth_sum.height)
+  // A bare truth file has no image to compare.
+  if (!truth_file && (est_sum.width != truth_sum.width || est_sum.height != truth_sum.height))
     e.notes.push_back(fmt::format("image sizes differ: estimate {}x{}, truth {}x{}", est_sum.width, est_sum.height,
                                   truth_sum.width, truth_sum.height));
-  if ((est_sum.principal_point_px - truth_sum.principal_point_px).norm() > 1e-6)
+  if (!truth_file && (est_sum.principal_point_px - truth_sum.principal_point_px).norm() > 1e-6)
     e.notes.push_back(fmt::format("principal points differ: estimate ({}, {}), truth ({}, {})",
                                   est_sum.principal_point_px.x(), est_sum.principal_point_px.y(),
                                   truth_sum.principal_point_px.x(), truth_sum.principal_point_px.y()));

@@ -3,10 +3,10 @@
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <cstdlib>
-#include <optional>
 #include <array>
 #include <cmath>
+#include <cstdlib>
+#include <optional>
 #include <string_view>
 #include <vector>
 #include <cctype>
@@ -52,10 +52,14 @@ double realNode(const cv::FileStorage& fs, const char* name, const std::filesyst
   return static_cast<double>(n);
 }
 
-int intNode(const cv::FileStorage& fs, const char* name, const std::filesystem::path& f) {
-  const double v = realNode(fs, name, f);
-  if (!(v >= 1 && v <= 65536) || v != std::floor(v)) bad(f, fmt::format("\"{}\" must be a positive integer, got {}", name, v));
+/// An image side: an integer from 1 to 65536 (`what` names it in the message).
+int positiveSide(double v, const std::string& what, const std::filesystem::path& f) {
+  if (!(v >= 1 && v <= 65536) || v != std::floor(v)) bad(f, fmt::format("{} must be a positive integer, got {}", what, v));
   return static_cast<int>(v);
+}
+
+int intNode(const cv::FileStorage& fs, const char* name, const std::filesystem::path& f) {
+  return positiveSide(realNode(fs, name, f), fmt::format("\"{}\"", name), f);
 }
 
 CameraCalibration fromStorage(const cv::FileStorage& fs, const std::filesystem::path& file);
@@ -111,6 +115,13 @@ struct PlainYaml {
   }
 };
 
+/// The whole of `tok` as a finite number (strtod's syntax); false otherwise.
+bool finiteNumber(const std::string& tok, double* v) {
+  char* end = nullptr;
+  *v = std::strtod(tok.c_str(), &end);
+  return !tok.empty() && end == tok.c_str() + tok.size() && std::isfinite(*v);
+}
+
 PlainYaml parsePlainYaml(const std::string& text, const std::filesystem::path& file) {
   PlainYaml y;
   std::vector<std::pair<std::size_t, std::string>> parents;  // (indent, key) of open mappings
@@ -125,10 +136,8 @@ PlainYaml parsePlainYaml(const std::string& text, const std::filesystem::path& f
       if (i >= body.size()) break;
       const std::size_t j = body.find_first_of(" \t,", i);
       const std::string tok = body.substr(i, j == std::string::npos ? std::string::npos : j - i);
-      char* end = nullptr;
-      const double v = std::strtod(tok.c_str(), &end);
-      if (tok.empty() || end != tok.c_str() + tok.size() || !std::isfinite(v))
-        bad(file, fmt::format("line {}: '{}' in a sequence is not a number", line, io::printable(tok, 40)));
+      double v = 0;
+      if (!finiteNumber(tok, &v)) bad(file, fmt::format("line {}: '{}' in a sequence is not a number", line, io::printable(tok, 40)));
       out.push_back(v);
       if (out.size() > 64) bad(file, fmt::format("line {}: a sequence of more than 64 numbers: not a camera", line));
       i = j == std::string::npos ? body.size() : j;
@@ -214,16 +223,9 @@ PlainYaml parsePlainYaml(const std::string& text, const std::filesystem::path& f
 double plainNumber(const PlainYaml& y, const std::string& key, const std::filesystem::path& file) {
   const std::string* v = y.scalar(key);
   if (!v) bad(file, fmt::format("missing \"{}\"", key));
-  char* end = nullptr;
-  const double d = std::strtod(v->c_str(), &end);
-  if (v->empty() || end != v->c_str() + v->size() || !std::isfinite(d))
-    bad(file, fmt::format("\"{}\" is not a number: '{}'", key, io::printable(*v, 40)));
+  double d = 0;
+  if (!finiteNumber(*v, &d)) bad(file, fmt::format("\"{}\" is not a number: '{}'", key, io::printable(*v, 40)));
   return d;
-}
-
-int plainSide(double v, const std::string& what, const std::filesystem::path& file) {
-  if (!(v >= 1 && v <= 65536) || v != std::floor(v)) bad(file, fmt::format("{} must be a positive integer, got {}", what, v));
-  return static_cast<int>(v);
 }
 
 /// A distortion model rsfm can undistort with OpenCV's (radial-tangential); a fisheye's is refused.
@@ -248,8 +250,8 @@ std::optional<CameraCalibration> fromPlainYaml(const std::string& text, const st
   CameraCalibration c;
   c.source = file.string();
   if (const std::vector<double>* k = y.sequence("camera_matrix.data")) {  // ROS camera_info
-    c.width = plainSide(plainNumber(y, "image_width", file), "\"image_width\"", file);
-    c.height = plainSide(plainNumber(y, "image_height", file), "\"image_height\"", file);
+    c.width = positiveSide(plainNumber(y, "image_width", file), "\"image_width\"", file);
+    c.height = positiveSide(plainNumber(y, "image_height", file), "\"image_height\"", file);
     if (k->size() != 9) bad(file, fmt::format("\"camera_matrix\" data must have 9 entries, got {}", k->size()));
     std::array<double, 9> m{};
     std::copy(k->begin(), k->end(), m.begin());
@@ -280,8 +282,8 @@ std::optional<CameraCalibration> fromPlainYaml(const std::string& text, const st
   if (in.size() != 4) bad(file, fmt::format("\"intrinsics\" must be [fu, fv, cu, cv], got {} numbers", in.size()));
   const std::vector<double>* res = y.sequence(prefix + "resolution");
   if (!res || res->size() != 2) bad(file, "missing \"resolution\": [width, height]");
-  c.width = plainSide((*res)[0], "\"resolution\" width", file);
-  c.height = plainSide((*res)[1], "\"resolution\" height", file);
+  c.width = positiveSide((*res)[0], "\"resolution\" width", file);
+  c.height = positiveSide((*res)[1], "\"resolution\" height", file);
   setCameraMatrix(&c, {in[0], 0, in[2], 0, in[1], in[3], 0, 0, 1}, "\"intrinsics\"", file);
   checkDistortionModel(y.scalar(prefix + "distortion_model"), file);
   const std::vector<double>* d = y.sequence(prefix + "distortion_coeffs");
@@ -289,8 +291,6 @@ std::optional<CameraCalibration> fromPlainYaml(const std::string& text, const st
   if (d && !d->empty()) setDistortion(&c, *d, "the distortion coefficients", file);
   return c;
 }
-
-
 
 /// Checks YAML text line by line against what calibration files hold (cv::calibrateCamera tools,
 /// camera.yaml) before OpenCV's parser sees it: OpenCV 4.6's YAML FileStorage loops forever on
@@ -482,8 +482,6 @@ CameraCalibration fromStorage(const cv::FileStorage& fs, const std::filesystem::
   c.height = intNode(fs, "image_height", file);
   const cv::Mat K = matrixNode(fs, "camera_matrix", file);
   if (K.rows != 3 || K.cols != 3) bad(file, fmt::format("\"camera_matrix\" must be 3x3, got {}x{}", K.rows, K.cols));
-  for (int i = 0; i < 9; ++i)
-    if (!std::isfinite(K.at<double>(i / 3, i % 3))) bad(file, "\"camera_matrix\" has a non-finite entry");
   std::array<double, 9> k{};
   for (int i = 0; i < 9; ++i) k[static_cast<std::size_t>(i)] = K.at<double>(i / 3, i % 3);
   setCameraMatrix(&c, k, "\"camera_matrix\"", file);

@@ -445,7 +445,7 @@ Tracks trackInput(const std::string& input, const TrackerOptions& options, Frame
   if (!numbers.empty()) t.first_frame = range.first + trimmed;
   t.source = input;
   t.image.fps = source.fps;
-  t.image.time_origin = source.fps > 0 ? source.time_origin_s : 0.0;
+  t.image.time_origin = source.time_origin_s;  // 0 without a rate (forEachFrame)
   t.image.readout_direction = readoutDirectionAfterRotation(source.rotation);
   return t;
 }

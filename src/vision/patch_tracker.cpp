@@ -137,7 +137,7 @@ PatchTracks trackPatchesInput(const std::string& input, const PatchTrackerOption
   trimLeadingEmptyFrames(&t);  // a fade-in: the patches start at the first frame with one
   t.source = input;
   t.image.fps = source.stated_fps;  // the patch tracks keep the decoded numbering (docs/tracks.md)
-  t.image.time_origin = source.stated_fps > 0 ? source.time_origin_s : 0.0;
+  t.image.time_origin = source.time_origin_s;  // 0 without a rate (forEachFrame)
   t.image.readout_direction = readoutDirectionAfterRotation(source.rotation);
   return t;
 }
