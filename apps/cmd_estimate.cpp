@@ -477,6 +477,8 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
                                 {"tolerances_px", {{"ransac", tol.ransac_px}, {"stray", tol.verify_px}, {"static", tol.static_px},
                                                    {"same_motion", tol.motion_px}, {"still", tol.still_px}}},
                                 {"tolerances_widened", pf.widened},
+                                {"tracks_cut", std::count_if(pf.cut_after.begin(), pf.cut_after.end(), [](int k) { return k >= 0; })},
+                                {"observations_cut", r.observations_cut},
                                 {"planes_estimated_from_frame", from},
                                 {"manual", !e.est.finder.rois.empty()}};
   // The filter's measurement noise: the --sigma-px floor raised to the tracking noise (estimate()).

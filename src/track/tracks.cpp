@@ -41,6 +41,20 @@ std::vector<std::array<int, 2>> consecutiveStretches(const std::vector<int>& sor
   return out;
 }
 
+std::size_t dropObservationsAfter(Tracks* t, const std::vector<int>& last) {
+  std::size_t dropped = 0;
+  for (std::size_t k = 0; k < t->frames.size(); ++k) {
+    std::vector<TrackPoint>& f = t->frames[k];
+    const auto end = std::remove_if(f.begin(), f.end(), [&](const TrackPoint& p) {
+      const int l = p.id >= 0 && static_cast<std::size_t>(p.id) < last.size() ? last[static_cast<std::size_t>(p.id)] : -1;
+      return l >= 0 && static_cast<int>(k) > l;
+    });
+    dropped += static_cast<std::size_t>(f.end() - end);
+    f.erase(end, f.end());
+  }
+  return dropped;
+}
+
 int trimLeadingEmptyFrames(Tracks* t) {
   const std::size_t n = leadingEmptyFrames(t->frames);
   if (n == 0 || n == t->frames.size()) return 0;

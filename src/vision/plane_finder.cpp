@@ -409,24 +409,46 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
     }
   };
   std::vector<const TrackPoint*> at;
+  // Where a member leaves its plane (an occlusion edge it slides along, a slow slip of the
+  // tracker): its observations up to cut_after[id] count, the later ones are left out (-1: its
+  // whole life; FoundPlane::cuts). A long sequence's tracks often follow their plane for hundreds
+  // of frames and then slide; dropping them whole lost the planes there (a 240-deg orbit of
+  // 1200 frames: the estimate ended at frame 273).
+  std::vector<int> cut_after(ids, -1);
+  // Cuts are made once the planes are chosen (below): the search, its pair frame and its verdicts
+  // judge whole tracks, as a member that strays anywhere is no evidence for a plane there.
+  bool allow_cuts = false;
+  auto usedAt = [&](int id, int k) { return cut_after[id] < 0 || k <= cut_after[id]; };
   auto fitAllFrames = [&](FoundPlane* c) {
     std::vector<int> members = c->members;
+    for (int id : members) cut_after[id] = -1;
+    for (const auto& [id, last] : c->cuts) cut_after[id] = last;
     const double verify2 = verify_px * verify_px;
-    for (int round = 0; round < 2; ++round) {
+    // A member's part on the plane ends at its last residual within what the tracking noise
+    // gives a member at most (its 99.9 % quantile, as the pair frame's; sd sqrt 2 x noise per
+    // axis: planeTolerances), and at most half the stray tolerance: the frames where it was
+    // already sliding away stay out.
+    const double noise_q = tol.noise_px > 0 ? std::sqrt(2.0) * tol.noise_px * std::sqrt(-2.0 * std::log(1e-3)) : verify_px;
+    const double clean = std::min(0.5 * verify_px, noise_q);
+    const double clean2 = clean * clean;
+    for (int round = 0; round < 3; ++round) {
       c->H.assign(F, cv::Matx33d::eye());
       c->support.assign(F, 0);
       c->support[0] = static_cast<int>(members.size());
-      std::vector<char> bad(ids, 0);
+      // Per member: the first frame where it strays, and the last one before that with a clean residual.
+      // And whether it came back to the plane after straying (a noise spike, not a slide).
+      std::vector<int> strays(ids, -1), clean(ids, -1);
+      std::vector<char> back(ids, 0);
       const std::vector<int> by_id = idOrder(members);
+      std::vector<cv::Point2d> a, b;
       for (int k = 1; k < F; ++k) {
         pointsAt(members, by_id, k, &at);
-        std::vector<cv::Point2d> a, b;
         auto collect = [&](bool with_joined) {
           a.clear();
           b.clear();
           for (size_t m = 0; m < members.size(); ++m) {
             const int id = members[m];
-            if (std::isfinite(refpos[id].x) && at[m] && (with_joined || !joined[id])) {
+            if (std::isfinite(refpos[id].x) && at[m] && usedAt(id, k) && (with_joined || !joined[id])) {
               a.push_back(refpos[id]);
               b.push_back(pt(*at[m]));
             }
@@ -438,21 +460,82 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
           c->H[k] = c->H[k - 1];
           continue;
         }
+        // Once cuts are made, the frame's fit leaves out the points that stray from it (twice):
+        // a few tracks sliding off together drag the least-squares homography, and the plane's
+        // other members would be cut for it. (Not in the search: at the 3 px tolerance a noisy
+        // sequence's good members stray too, and a fit without them judged the rest more
+        // strictly: webcam-object lost a plane.)
+        for (int it = 0; allow_cuts && it < 2; ++it) {
+          size_t n = 0;
+          for (size_t i = 0; i < a.size(); ++i) {
+            const cv::Point2d q = apply(c->H[k], a[i]);
+            const double dx = q.x - b[i].x, dy = q.y - b[i].y;
+            if (dx * dx + dy * dy <= verify2) {
+              a[n] = a[i];
+              b[n] = b[i];
+              ++n;
+            }
+          }
+          if (n == a.size() || static_cast<int>(n) < kMinSupport) break;
+          a.resize(n);
+          b.resize(n);
+          cv::Matx33d H;
+          if (!fitH(a, b, &H)) break;
+          c->H[k] = H;
+        }
         c->support[k] = static_cast<int>(a.size());
         // Every member in view is tested against it.
         for (size_t m = 0; m < members.size(); ++m) {
           const int id = members[m];
           const TrackPoint* pk = at[m];
-          if (!pk || !std::isfinite(refpos[id].x)) continue;
+          if (!pk || !std::isfinite(refpos[id].x) || !usedAt(id, k) || back[id]) continue;
           const cv::Point2d q = apply(c->H[k], refpos[id]);
           const double dx = q.x - pk->px.x(), dy = q.y - pk->px.y();
-          if (dx * dx + dy * dy > verify2) bad[id] = 1;
+          const double r2 = dx * dx + dy * dy;
+          if (strays[id] >= 0) back[id] = r2 <= clean2;
+          else if (r2 > verify2) strays[id] = k;
+          else if (r2 <= clean2) clean[id] = k;
         }
       }
+      // A member that strays and never comes back (it left the plane: a slide, not a spike of
+      // noise) keeps its part up to its last clean frame when that part is one a later track
+      // would need to join (min_new_track_frames, and its own motion reaching the stray
+      // tolerance) and, for a track of the plane's own pair, reaches the pair frame. One that
+      // comes back is no member (its error is not the plane's to explain).
       std::vector<int> keep;
-      for (int id : members)
-        if (!bad[id]) keep.push_back(id);
-      const bool changed = keep.size() != members.size();
+      bool changed = false;
+      for (int id : members) {
+        if (strays[id] < 0) {
+          keep.push_back(id);
+          continue;
+        }
+        changed = true;
+        const int last = clean[id];
+        const TrackSpan s = spans[id];
+        bool ok = !back[id] && last >= 0 && last - s.first + 1 >= o.min_new_track_frames && (joined[id] || last >= c->pair_frame);
+        if (ok) {
+          // Its own motion on the plane, and while it left it (its last clean frame to the one it
+          // strayed in). A point off the plane leaves it in proportion to its own image motion
+          // (its parallax grows with the baseline): it needs several times more motion to go from
+          // the noise's quantile to the stray tolerance than it made within the quantile. A track
+          // that slides off leaves within a little motion. So the part is kept only when the
+          // track left with less than half the motion it had made on the plane (ViSP's
+          // Castle-simu, a castle's relief: 26 tracks cut otherwise, and its focal length's
+          // supported interval lost the truth).
+          const TrackPoint* p0 = tracks.find(s.first, id);
+          const TrackPoint* pl = tracks.find(last, id);
+          const TrackPoint* ps = tracks.find(strays[id], id);
+          double moved = 0.0;
+          for (int k = s.first + 1; p0 && k <= last; ++k)
+            if (const TrackPoint* pk = tracks.find(k, id)) moved = std::max(moved, (pk->px - p0->px).norm());
+          ok = moved >= verify_px && p0 && pl && ps && 2.0 * (ps->px - pl->px).norm() < (pl->px - p0->px).norm();
+        }
+        if (!allow_cuts) ok = false;
+        if (ok) {
+          cut_after[id] = last;
+          keep.push_back(id);
+        }
+      }
       members.swap(keep);
       if (!changed) break;
     }
@@ -466,7 +549,8 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
       for (size_t m = 0; m < members.size(); ++m) {
         const int id = members[m];
         const TrackPoint* pk = at[m];
-        if (std::isfinite(refpos[id].x) && pk) d.push_back(std::hypot(pk->px.x() - refpos[id].x, pk->px.y() - refpos[id].y));
+        if (std::isfinite(refpos[id].x) && pk && usedAt(id, k))
+          d.push_back(std::hypot(pk->px.x() - refpos[id].x, pk->px.y() - refpos[id].y));
       }
       if (d.size() < 3) continue;
       std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
@@ -481,6 +565,9 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
     if (motion >= tol.static_px)
       c->members.erase(std::remove_if(c->members.begin(), c->members.end(), [&](int id) { return !moves[id]; }),
                        c->members.end());
+    c->cuts.clear();
+    for (int id : c->members)
+      if (cut_after[id] >= 0) c->cuts.emplace_back(id, cut_after[id]);
   };
 
   std::vector<FoundPlane> cands;
@@ -536,6 +623,7 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
         for (size_t i = 0; i < a.size(); ++i) (mask[i] ? c.members : rest).push_back(remaining[i]);
         if (static_cast<int>(c.members.size()) < o.min_plane_tracks) break;
         remaining.swap(rest);
+        c.pair_inliers = c.members;
         fitAllFrames(&c);
         if (static_cast<int>(c.members.size()) < o.min_plane_tracks) c.verdict = PlaneVerdict::TooFew;
         cands.push_back(std::move(c));
@@ -574,6 +662,8 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
           u.members = cands[a].members;
           u.pair_frame = cands[a].pair_frame;
           u.members.insert(u.members.end(), cands[b].members.begin(), cands[b].members.end());
+          u.pair_inliers = cands[a].pair_inliers;
+          u.pair_inliers.insert(u.pair_inliers.end(), cands[b].pair_inliers.begin(), cands[b].pair_inliers.end());
           const size_t total = u.members.size();
           fitAllFrames(&u);
           if (u.members.size() >= 0.9 * total) {
@@ -740,6 +830,18 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
     cands[order[r]].label = static_cast<int>(r);
     for (int id : cands[order[r]].members) res.labels[id] = static_cast<int>(r);
   }
+  // The chosen planes' pair inliers that strayed later (an occlusion edge a track slid along, a
+  // slip) are members up to where they left the plane (fitAllFrames' cuts).
+  allow_cuts = true;
+  for (size_t r = 0; r < order.size(); ++r) {
+    FoundPlane& c = cands[order[r]];
+    const size_t before = c.members.size();
+    for (int id : c.pair_inliers)
+      if (res.labels[id] == -1) c.members.push_back(id);
+    if (c.members.size() == before) continue;
+    fitAllFrames(&c);
+    for (int id : c.members) res.labels[id] = static_cast<int>(r);
+  }
 
   // Tracks not yet judged (born later, or reference tracks lost before the pair frame): carried
   // from their first frame b by H(k) H(b)^-1 of exactly one accepted plane. Members of rejected
@@ -757,36 +859,57 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
       if (s.first < 0 || judged[id] || res.labels[id] == -2 || s.length() < 2) continue;
       const TrackPoint* pb = tracks.find(s.first, id);
       if (!pb) continue;
-      int fits = 0, which = -1;
+      // Planes it fits over its whole life; those it fits up to where it strays (one of those
+      // counts only when it fits none whole).
+      int fits = 0, which = -1, part_fits = 0, part_which = -1, cut = -1;
       for (int j : order) {
         const auto& c = cands[j];
         // Only frames whose homography its members determine (kMinSupport of them) test a track.
         if (c.support[s.first] < kMinSupport) continue;
         const cv::Matx33d Hb_inv = c.H[s.first].inv();
-        bool ok = true;
-        int checked = 0;
+        int checked = 0, last_ok = -1, strayed_at = -1;
         double moved = 0.0;  // the track's own largest displacement from its first position (px)
         const int step = std::max(1, s.length() / 8);
-        for (int k = s.first + step; k <= s.last && ok; k += step) {
+        // The frames it is tested on, up to the first where it strays: it joins with its part
+        // before that (a track that slides along an occlusion edge later).
+        for (int k = s.first + step; k <= s.last; k += step) {
           const TrackPoint* pk = tracks.find(k, id);
           if (!pk || c.support[k] < kMinSupport) continue;
           const cv::Point2d q = apply(c.H[k] * Hb_inv, pt(*pb));
-          ok = std::hypot(q.x - pk->px.x(), q.y - pk->px.y()) < verify_px;
+          if (std::hypot(q.x - pk->px.x(), q.y - pk->px.y()) >= verify_px) {
+            strayed_at = k;
+            break;
+          }
           moved = std::max(moved, (pk->px - pb->px).norm());
           ++checked;
+          last_ok = k;
         }
         // Issue 14 item 2: the track's own motion must test the plane. A track that never moves
         // more than the join tolerance from where it started fits "still" as well as it fits
         // the plane (a still object's track, or the plane's, over a few slow frames): it cannot
         // tell, and joins no moving plane.
-        if (ok && checked >= 2 && moved >= verify_px) {
-          ++fits;
-          which = c.label;
+        if (checked >= 2 && moved >= verify_px) {
+          if (strayed_at < 0) {
+            ++fits;
+            which = c.label;
+          } else if (last_ok - s.first + 1 >= o.min_new_track_frames) {
+            ++part_fits;
+            part_which = c.label;
+            cut = strayed_at - 1;
+          }
         }
+      }
+      if (fits == 0 && part_fits == 1) {
+        fits = 1;
+        which = part_which;
+      } else {
+        cut = -1;
       }
       if (fits == 1) {
         res.labels[id] = which;
         cands[order[which]].members.push_back(id);
+        // Its frames before the one it strayed in are checked frame by frame by the refit below.
+        if (cut >= 0) cands[order[which]].cuts.emplace_back(id, cut);
         judged[id] = 1;
         joined[id] = 1;
         refpos[id] = apply(cands[order[which]].H[s.first].inv(), pt(*pb));
@@ -804,6 +927,9 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
         if (!kept[id]) res.labels[id] = -1;
     }
   }
+  res.cut_after.assign(ids, -1);
+  for (int j : order)
+    for (const auto& [id, last] : cands[j].cuts) res.cut_after[id] = last;
   res.candidates = std::move(cands);
   return res;
 }

@@ -97,7 +97,10 @@ struct EstimateResult {
   /// from the tracks instead): left out of every stage like a held frame, put back with
   /// TrackFrame::unobserved (no pose in trajectory.tum or poses.csv).
   std::vector<int> unobserved_frames;
-  vision::PlaneFinding planes;      ///< label per track, every candidate plane, the pair frame (an index from the reference frame)
+  vision::PlaneFinding planes;      ///< label per track, every candidate plane, the pair frame and cut_after (indexes from the reference frame)
+  /// Observations left out after the frame where their track left its plane (planes.cut_after:
+  /// an occlusion edge it slid along, a slip; docs/estimate.md section 1, "Tracks that leave their plane").
+  std::size_t observations_cut = 0;
   vision::PlaneStart start;         ///< the homography start (ok = false: not tried, or refused: note says why)
   bool start_tried = false;
   TrackFilterOptions filter_used;   ///< the filter's options after the start (and a known camera)

@@ -110,6 +110,11 @@ std::size_t leadingEmptyFrames(const Frames& frames) {
   return n;
 }
 
+/// Removes each track's observations after frame index `last[id]` (ids with -1, or beyond the
+/// vector: none removed); returns how many observations went. The plane finder's cuts
+/// (vision::PlaneFinding::cut_after: where a track left its plane).
+std::size_t dropObservationsAfter(Tracks* t, const std::vector<int>& last);
+
 /// Leaves out the frames before the first one with a track (a video that fades in from black,
 /// featureless frames: nothing to estimate from, and the reference frame needs tracks); returns
 /// how many. first_frame (or frame_numbers) follows. A sequence without any track is left as is.

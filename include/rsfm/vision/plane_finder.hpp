@@ -9,6 +9,7 @@
 
 #include <functional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "rsfm/track/tracks.hpp"
@@ -89,12 +90,20 @@ struct FoundPlane {
   double same_motion_fraction = -1;   ///< plane+parallax agreement with the main plane (-1: main/untested)
   int pair_frame = -1;                ///< the frame of the RANSAC pair it was found at (-1: manual ROI)
   int first_frame = 0;                ///< its reference frame: 0, or a later one for a plane that came into view later
+  /// Members that leave the plane (an occlusion edge they slide along, a tracker's slip): (track
+  /// id, the last frame of its part on the plane); members not listed count over their whole life.
+  std::vector<std::pair<int, int>> cuts;
+  std::vector<int> pair_inliers;      ///< its RANSAC inliers at the pair frame, before the per-frame test
 };
 
 struct PlaneFinding {
   /// Label per track id: plane 0..m-1 (accepted planes, largest first), -1 outlier (fits no
   /// accepted plane or belongs to a rejected one), -2 not used (too short to judge).
   std::vector<int> labels;
+  /// Per track id: the last frame index of a member's observations on its plane, where it left
+  /// it (an occlusion edge it slid along, a slip); its later observations are left out. -1: its
+  /// whole life (and every track not on a plane). Empty: none cut.
+  std::vector<int> cut_after;
   std::vector<FoundPlane> candidates;  ///< every candidate plane, accepted and rejected
   int pair_frame = -1;                 ///< frame index of the RANSAC pair (reference, pair_frame)
   PlaneTolerances tolerances;          ///< the pixel tolerances used (noise_px: the measured noise)
