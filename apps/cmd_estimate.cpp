@@ -420,6 +420,14 @@ void trimAndSay(T* t, const char* what, const std::string& file, bool quiet) {
 
 namespace {
 /// The held frames as input frame numbers, one [first, last] pair per stretch.
+// The plane tracks used up to where they left their plane (a track whose plane was later left
+// out, its label -1, is not counted).
+long tracksCut(const vision::PlaneFinding& pf) {
+  long n = 0;
+  for (std::size_t id = 0; id < pf.cut_after.size() && id < pf.labels.size(); ++id) n += pf.cut_after[id] >= 0 && pf.labels[id] >= 0;
+  return n;
+}
+
 nlohmann::json heldFrames(const Tracks& tracks, const vision::StillStart& s) {
   nlohmann::json runs = nlohmann::json::array();
   for (const auto& [first, last] : vision::heldStretches(s)) runs.push_back({tracks.frameNumber(first), tracks.frameNumber(last)});
@@ -477,7 +485,7 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
                                 {"tolerances_px", {{"ransac", tol.ransac_px}, {"stray", tol.verify_px}, {"static", tol.static_px},
                                                    {"same_motion", tol.motion_px}, {"still", tol.still_px}}},
                                 {"tolerances_widened", pf.widened},
-                                {"tracks_cut", std::count_if(pf.cut_after.begin(), pf.cut_after.end(), [](int k) { return k >= 0; })},
+                                {"tracks_cut", tracksCut(pf)},
                                 {"observations_cut", r.observations_cut},
                                 {"planes_estimated_from_frame", from},
                                 {"manual", !e.est.finder.rois.empty()}};

@@ -661,7 +661,7 @@ TEST(Refine, AnUndeterminedFocalLengthGetsItsProfileInterval) {
   // of -6052 px: not determined, whatever its relative sd reads (it read "determined" before
   // the refinement checked beta's sign).
   int local = 0;
-  for (unsigned seed : {31u, 32u, 33u}) {
+  for (unsigned seed : {31u, 32u, 33u, 35u}) {
     Synthetic s = makeTracks(seed, 1.0, Eigen::Vector2d::Zero(), 0.0, 0.0, 20, 0.1);
     const EstimateResult r = estimate(s.tracks, EstimateOptions{});
     ASSERT_TRUE(r.refined.ok) << r.refined.message;
@@ -671,7 +671,9 @@ TEST(Refine, AnUndeterminedFocalLengthGetsItsProfileInterval) {
     EXPECT_GE((*r.refined.focal_interval_px)[1], s.focal) << "seed " << seed << ": " << r.refined.why;
     local += r.refined.why.find("local optimum") != std::string::npos;
   }
-  EXPECT_GE(local, 1) << "the profile finds the local optimum of seed 32";
+  // Seed 32's optimum was the local one until the plane finder's cuts (2026-12-07: its tracks
+  // changed by a few); seed 35's is now (seed 36 finds no moving plane at all).
+  EXPECT_GE(local, 1) << "the profile finds a local optimum (seed 35)";
 }
 
 }  // namespace

@@ -536,13 +536,19 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
     }
   }
   if (o.late_planes && fopt.model == TrackModel::Planes && o.finder.rois.empty()) {
+    const auto cutCount = [&] { return std::count_if(pf.cut_after.begin(), pf.cut_after.end(), [](int k) { return k >= 0; }); };
+    const auto cut_before = cutCount();
     fopt.late_planes = findLatePlanes(tracks, &r.planes, o.finder);
-    r.observations_cut += dropObservationsAfter(&on_planes, r.planes.cut_after);
+    const std::size_t late_observations_cut = dropObservationsAfter(&on_planes, r.planes.cut_after);
+    r.observations_cut += late_observations_cut;
     if (!fopt.late_planes.empty()) {
       std::string line = fmt::format("planes: {} more came into view later:", fopt.late_planes.size());
       for (const auto& lp : fopt.late_planes)
         line += fmt::format(" [plane {}: {} tracks from frame {}, placed from frame {} on]", lp.label, pf.count(lp.label),
                             tracks.frameNumber(lp.first_frame), tracks.frameNumber(lp.init_frame));
+      if (cutCount() > cut_before)
+        line += fmt::format("; {} of their tracks used up to where they left their plane ({} observations after that left out)",
+                            cutCount() - cut_before, late_observations_cut);
       say(line);
     }
   }
