@@ -419,7 +419,6 @@ void trimAndSay(T* t, const char* what, const std::string& file, bool quiet) {
 }  // namespace
 
 namespace {
-/// The held frames as input frame numbers, one [first, last] pair per stretch.
 // The plane tracks used up to where they left their plane (a track whose plane was later left
 // out, its label -1, is not counted).
 long tracksCut(const vision::PlaneFinding& pf) {
@@ -428,6 +427,7 @@ long tracksCut(const vision::PlaneFinding& pf) {
   return n;
 }
 
+/// The held frames as input frame numbers, one [first, last] pair per stretch.
 nlohmann::json heldFrames(const Tracks& tracks, const vision::StillStart& s) {
   nlohmann::json runs = nlohmann::json::array();
   for (const auto& [first, last] : vision::heldStretches(s)) runs.push_back({tracks.frameNumber(first), tracks.frameNumber(last)});
