@@ -421,12 +421,6 @@ void trimAndSay(T* t, const char* what, const std::string& file, bool quiet) {
 namespace {
 // The plane tracks used up to where they left their plane (a track whose plane was later left
 // out, its label -1, is not counted).
-long tracksCut(const vision::PlaneFinding& pf) {
-  long n = 0;
-  for (std::size_t id = 0; id < pf.cut_after.size() && id < pf.labels.size(); ++id) n += pf.cut_after[id] >= 0 && pf.labels[id] >= 0;
-  return n;
-}
-
 /// The held frames as input frame numbers, one [first, last] pair per stretch.
 nlohmann::json heldFrames(const Tracks& tracks, const vision::StillStart& s) {
   nlohmann::json runs = nlohmann::json::array();
@@ -485,7 +479,7 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
                                 {"tolerances_px", {{"ransac", tol.ransac_px}, {"stray", tol.verify_px}, {"static", tol.static_px},
                                                    {"same_motion", tol.motion_px}, {"still", tol.still_px}}},
                                 {"tolerances_widened", pf.widened},
-                                {"tracks_cut", tracksCut(pf)},
+                                {"tracks_cut", pf.tracksCut()},
                                 {"observations_cut", r.observations_cut},
                                 {"planes_estimated_from_frame", from},
                                 {"manual", !e.est.finder.rois.empty()}};

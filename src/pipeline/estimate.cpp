@@ -464,8 +464,7 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
       line += fmt::format(" [{} {} tracks, motion {:.1f} px{}]", vision::toString(c.verdict), c.members.size(),
                           c.median_motion_px,
                           c.same_motion_fraction >= 0 ? fmt::format(", same-motion {:.2f}", c.same_motion_fraction) : "");
-    int cut = 0;
-    for (int k : pf.cut_after) cut += k >= 0;
+    const int cut = pf.tracksCut();
     say(line + fmt::format("; outliers {}", pf.count(-1)) +
         (cut > 0 ? fmt::format("; {} tracks used up to where they left their plane ({} observations after that left out)", cut,
                                r.observations_cut)
@@ -536,8 +535,7 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
     }
   }
   if (o.late_planes && fopt.model == TrackModel::Planes && o.finder.rois.empty()) {
-    const auto cutCount = [&] { return std::count_if(pf.cut_after.begin(), pf.cut_after.end(), [](int k) { return k >= 0; }); };
-    const auto cut_before = cutCount();
+    const int cut_before = pf.tracksCut();
     fopt.late_planes = findLatePlanes(tracks, &r.planes, o.finder);
     const std::size_t late_observations_cut = dropObservationsAfter(&on_planes, r.planes.cut_after);
     r.observations_cut += late_observations_cut;
@@ -546,9 +544,9 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
       for (const auto& lp : fopt.late_planes)
         line += fmt::format(" [plane {}: {} tracks from frame {}, placed from frame {} on]", lp.label, pf.count(lp.label),
                             tracks.frameNumber(lp.first_frame), tracks.frameNumber(lp.init_frame));
-      if (cutCount() > cut_before)
+      if (pf.tracksCut() > cut_before)
         line += fmt::format("; {} of their tracks used up to where they left their plane ({} observations after that left out)",
-                            cutCount() - cut_before, late_observations_cut);
+                            pf.tracksCut() - cut_before, late_observations_cut);
       say(line);
     }
   }

@@ -36,6 +36,12 @@ int PlaneFinding::count(int label) const {
   return static_cast<int>(std::count(labels.begin(), labels.end(), label));
 }
 
+int PlaneFinding::tracksCut() const {
+  int n = 0;
+  for (std::size_t id = 0; id < cut_after.size() && id < labels.size(); ++id) n += cut_after[id] >= 0 && labels[id] >= 0;
+  return n;
+}
+
 namespace {
 
 cv::Point2d apply(const cv::Matx33d& H, const cv::Point2d& p) {
@@ -865,65 +871,43 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
       if (s.first < 0 || judged[id] || res.labels[id] == -2 || s.length() < 2) continue;
       const TrackPoint* pb = tracks.find(s.first, id);
       if (!pb) continue;
-      // Planes it fits over its whole life; those it fits up to where it strays (one of those
-      // counts only when it fits none whole).
-      int fits = 0, which = -1, part_fits = 0, part_which = -1, cut = -1;
+      // Planes it fits over its whole life. No track joins with a part (one that strays in a
+      // tested frame joins no plane, as before the cuts): tried on 2026-12-07, a join of a part
+      // up to the first tested frame where the track strays moved the late planes' and the focal
+      // length's figures one track at a time (Adaptive.PlanesThatComeIntoViewLaterJoinTheFilter's
+      // fourth plane by 0.8 deg, Castle-simu's supported focal interval), with or without
+      // come-back and departure tests. A joined track that strays in a frame between the tested
+      // ones is cut by the refit below.
+      int fits = 0, which = -1;
       for (int j : order) {
         const auto& c = cands[j];
         // Only frames whose homography its members determine (kMinSupport of them) test a track.
         if (c.support[s.first] < kMinSupport) continue;
         const cv::Matx33d Hb_inv = c.H[s.first].inv();
-        int checked = 0, last_ok = -1, strayed_at = -1;
+        bool ok = true;
+        int checked = 0;
         double moved = 0.0;  // the track's own largest displacement from its first position (px)
         const int step = std::max(1, s.length() / 8);
-        // The frames it is tested on, up to the first where it strays: it may join with its part
-        // before that (a track that slides along an occlusion edge later).
-        for (int k = s.first + step; k <= s.last; k += step) {
+        for (int k = s.first + step; k <= s.last && ok; k += step) {
           const TrackPoint* pk = tracks.find(k, id);
           if (!pk || c.support[k] < kMinSupport) continue;
           const cv::Point2d q = apply(c.H[k] * Hb_inv, pt(*pb));
-          const double r = std::hypot(q.x - pk->px.x(), q.y - pk->px.y());
-          if (r >= verify_px) {
-            strayed_at = k;
-            break;
-          }
+          ok = std::hypot(q.x - pk->px.x(), q.y - pk->px.y()) < verify_px;
           moved = std::max(moved, (pk->px - pb->px).norm());
           ++checked;
-          last_ok = k;
         }
-        // No track joins with a part (one that strays in a tested frame joins no plane, as
-        // before the cuts): tried on 2026-12-07, a join of a part up to the first tested frame
-        // where the track strays moved the late planes' and the focal length's figures one track
-        // at a time (Adaptive.PlanesThatComeIntoViewLaterJoinTheFilter's fourth plane by 0.8 deg,
-        // Castle-simu's supported focal interval), with or without come-back and departure tests.
-        // A joined track that strays in a frame between the tested ones is cut by the refit.
-        const bool part = false;
         // Issue 14 item 2: the track's own motion must test the plane. A track that never moves
         // more than the join tolerance from where it started fits "still" as well as it fits
         // the plane (a still object's track, or the plane's, over a few slow frames): it cannot
         // tell, and joins no moving plane.
-        if (checked >= 2 && moved >= verify_px) {
-          if (strayed_at < 0) {
-            ++fits;
-            which = c.label;
-          } else if (part) {
-            ++part_fits;
-            part_which = c.label;
-            cut = strayed_at - 1;
-          }
+        if (ok && checked >= 2 && moved >= verify_px) {
+          ++fits;
+          which = c.label;
         }
-      }
-      if (fits == 0 && part_fits == 1) {
-        fits = 1;
-        which = part_which;
-      } else {
-        cut = -1;
       }
       if (fits == 1) {
         res.labels[id] = which;
         cands[order[which]].members.push_back(id);
-        // Its frames before the one it strayed in are checked frame by frame by the refit below.
-        if (cut >= 0) cands[order[which]].cuts.emplace_back(id, cut);
         judged[id] = 1;
         joined[id] = 1;
         refpos[id] = apply(cands[order[which]].H[s.first].inv(), pt(*pb));

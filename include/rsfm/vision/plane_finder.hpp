@@ -125,6 +125,9 @@ struct PlaneFinding {
   std::vector<PairTry> pair_frame_tries;
   int numPlanes() const;
   int count(int label) const;
+  /// Tracks on a plane (label >= 0) used up to where they left it (cut_after >= 0): the count
+  /// the "planes:" lines and summary.json's plane_finding.tracks_cut report.
+  int tracksCut() const;
 };
 
 /// Plane+parallax test (Irani & Anandan [IA96]) of a second plane against the main one: points
