@@ -507,9 +507,13 @@ int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOve
                       bool write_tracks, const RunTracking* tracking) {
   EstimateResult r;
   std::vector<std::string> warnings;
+  // The plane models' filter runs over the frames once per pass (TrackFilterOptions::passes): the
+  // count is of frames over all passes.
+  const int passes = e.est.filter.model == TrackModel::Point ? 1 : std::max(1, e.est.filter.passes);
   try {
     r = estimate(tracks, e.est, noteTo(e.quiet, &warnings),
-                 e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
+                 e.quiet ? std::function<void(int, int)>{}
+                         : progressReporter("estimate", passes > 1 ? fmt::format("frames over {} passes", passes) : "frames"));
   } catch (const std::invalid_argument& ex) {
     return fail(kBadInput, ex.what());
   } catch (const io::InputError& ex) {

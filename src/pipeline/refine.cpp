@@ -523,7 +523,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   // that only turns, with noise) determines nothing, however its relative sd reads.
   r.focal_determined = known_focal || (b.beta_estimable && beta > 0 && focal_sd / f <= kDeterminedFocalRelSd);
   if (!r.focal_determined)
-    why.push_back(!b.beta_estimable ? "the focal length is in or near the null space (e.g. translation only: the affine ambiguity)"
+    why.push_back(!b.beta_estimable ? "the focal length is in the null space (e.g. translation only: the affine ambiguity)"
                   : !(beta > 0)     ? fmt::format("the focal length's optimum is not positive (beta {:.3g})", beta)
                                     : fmt::format("focal length sd {:.1f} % (limit {:.0f} %)", 100 * focal_sd / f,
                                                   100 * kDeterminedFocalRelSd));

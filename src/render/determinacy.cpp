@@ -182,10 +182,10 @@ Determinacy analyseDeterminacy(const Scene& scene, const DeterminacyOptions& opt
   }
   det.structure = all;
   const std::string focal_part = det.crb_focal_rel_sd ? fmt::format("focal sd {:.2g} %", 100 * *det.crb_focal_rel_sd)
-                                                      : std::string("focal not estimable (in or near the null space)");
+                                                      : std::string("focal not estimable (in the null space)");
   std::string structure_part = fmt::format("worst normal sd {:.2g} deg", worst);
   for (int j = 0; j < m; ++j)
-    if (!det.crb_normal_sd_deg[truth_of[j]]) structure_part = "some normals not estimable (in or near the null space)";
+    if (!det.crb_normal_sd_deg[truth_of[j]]) structure_part = "some normals not estimable (in the null space)";
   if (!b.ok) structure_part = b.message;
   det.why = fmt::format("Cramer-Rao bound at the truth, {} points on {} plane(s), {} px tracks, null space {}: {}; {}",
                         out.points, m, opt.track_sd_px, b.null_dim, focal_part, structure_part);

@@ -249,8 +249,9 @@ struct PlaneBatchBound {
   /// plane's normal must not be called determined.
   std::vector<double> jackknife_N, jackknife_ratio_N;
   /// Whether a functional of (beta, N..., camera) is estimable: `g_beta`, per plane `g_N` (3) and
-  /// `g_camera` (4) and `g_readout` its gradient. It is when orthogonal to the null space proper
-  /// and the weak directions carry at most half its variance g^T cov g.
+  /// `g_camera` (4) and `g_readout` its gradient. It is when orthogonal to the null space proper;
+  /// its variance g^T cov g includes the weak directions' share, and the caller's limit (e.g.
+  /// kDeterminedNormalSdDeg) judges whether it is small enough.
   bool estimable(double g_beta, const std::vector<Eigen::Vector3d>& g_N, const Eigen::Vector4d& g_camera,
                  double g_readout = 0.0) const;
   // Internal: the kept parameters' covariance (the pseudo-inverse, widened, plus the weak
