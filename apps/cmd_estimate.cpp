@@ -433,6 +433,12 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
   const vision::PlaneFinding& pf = r.planes;
   rep.tracks = &tracks;
   rep.labels = &r.labels();
+  // The plane finder's cuts count from the reference frame (estimate(): after a still start, from
+  // its last still frame); the report's indices are the input tracks'.
+  last_used.assign(r.planes.cut_after.size(), -1);
+  for (std::size_t id = 0; id < last_used.size(); ++id)
+    if (r.planes.cut_after[id] >= 0) last_used[id] = r.still.still_frames + r.planes.cut_after[id];
+  rep.last_used = &last_used;
   rep.result = &r.online;
   rep.refined = &r.refined;
   if (r.camera) {

@@ -510,12 +510,16 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
   if (refined) ac += angleRows(res.frames.back(), "refined", nullptr, 0, &r.refined->plane_determined);
   const auto angles_tmp = files->write(dir / "angles.csv", ac);
   // labels.csv
-  std::string lc = "track,label,first_frame,last_frame\n";
+  // last_frame_used: the last frame whose observation the estimate used (a track that left its
+  // plane: where it left it), -1 for a track on no plane.
+  std::string lc = "track,label,first_frame,last_frame,last_frame_used\n";
   const auto spans = trackSpans(*r.tracks);
   for (size_t id = 0; id < spans.size(); ++id) {
     if (spans[id].first < 0) continue;
-    lc += fmt::format("{},{},{},{}\n", id, (*r.labels)[id], r.tracks->frameNumber(spans[id].first),
-                      r.tracks->frameNumber(spans[id].last));
+    const int label = (*r.labels)[id];
+    const int cut = r.last_used && id < r.last_used->size() ? (*r.last_used)[id] : -1;
+    const int used = label < 0 ? -1 : r.tracks->frameNumber(cut >= 0 ? std::min(cut, spans[id].last) : spans[id].last);
+    lc += fmt::format("{},{},{},{},{}\n", id, label, r.tracks->frameNumber(spans[id].first), r.tracks->frameNumber(spans[id].last), used);
   }
   files->write(dir / "labels.csv", lc);
   nlohmann::json summary = estimateSummary(r);
