@@ -258,6 +258,25 @@ TEST(FrameSource, AFolderIsReadInTheOrderOfItsNamesNumbersWhichGiveTheTimes) {
   EXPECT_TRUE(info.frame_offsets.empty());
   EXPECT_NEAR(info.fps, 20.0, 1e-9);
   EXPECT_NEAR(info.time_origin_s, 1403636579.763555584, 1e-6);
+  // Epochs in milliseconds (13 digits: a phone app's, Android's System.currentTimeMillis) and
+  // microseconds (16): 25 frames/s, the frame after the second missing: the rate and origin, the
+  // dropped frame found as in a video.
+  for (const auto& [digits, per_s] : {std::pair<int, long long>{13, 1000}, {16, 1000000}}) {
+    std::vector<std::string> names;
+    for (long long k : {0, 1, 3, 4, 5}) names.push_back("cam_" + std::to_string(1403636579763LL * (per_s / 1000) + k * per_s / 25) + ".png");
+    ASSERT_EQ(names[0].size(), 4 + digits + 4);
+    EXPECT_EQ(readAll(folder("epoch" + std::to_string(digits), {names[4], names[2], names[0], names[3], names[1]}), &info),
+              (std::vector<int>{2, 4, 1, 3, 0}))
+        << digits;
+    EXPECT_EQ(info.frame_offsets, (std::vector<int>{0, 1, 3, 4, 5})) << digits;
+    EXPECT_NEAR(info.fps, 25.0, 1e-6) << digits;
+    EXPECT_NEAR(info.time_origin_s, 1403636579.763, 1e-6) << digits;
+  }
+  // A date written as digits with no fraction (14 digits): the number orders the frames; its
+  // steps (a second's 1, a minute's 41) are no time, and no rate is read.
+  EXPECT_EQ(readAll(folder("date14", {"20230615123500.png", "20230615123459.png"}), &info), (std::vector<int>{1, 0}));
+  EXPECT_EQ(info.fps, 0.0);
+  EXPECT_EQ(info.time_origin_s, 0.0);
   // Names with no one number (two numbers, prefixes that differ): natural order, no times.
   EXPECT_EQ(readAll(folder("mixed", {"b2_x.png", "a10.png", "a9.png", "b10_x.png"}), &info), (std::vector<int>{2, 1, 0, 3}));
   EXPECT_TRUE(info.frame_offsets.empty());

@@ -150,17 +150,28 @@ NamedFrames orderImageFiles(std::vector<fs::path> files) {
     return std::strtold((nums[i].integer + (nums[i].fraction.empty() ? "" : "." + nums[i].fraction)).c_str(), nullptr);
   };
   const long double first = value(order[0]);
-  const bool nanoseconds = !fractional && first >= 1e17L;
-  out.kind = fractional || nanoseconds ? TimeKind::Seconds : TimeKind::FrameNumbers;
-  const long double unit = nanoseconds ? 1e-9L : 1.0L;
+  // Integers that are epochs (since 1970, between 2001 and 2286): 13 digits milliseconds, 16
+  // microseconds, 19 nanoseconds (EuRoC's, ROS's). No frame counter reaches 10^12; a date
+  // written as digits (20230615123456, 14) falls between and numbers the frames.
+  const long double unit = fractional                       ? 1.0L
+                           : first >= 1e17L                  ? 1e-9L
+                           : first >= 1e15L && first < 1e16L ? 1e-6L
+                           : first >= 1e12L && first < 1e13L ? 1e-3L
+                                                             : 0.0L;
+  if (unit == 0.0L) {  // frame numbers
+    out.kind = TimeKind::FrameNumbers;
+    for (std::size_t i : order) out.times.push_back(static_cast<double>(value(i) - first));
+    return out;
+  }
   // Seconds beyond what a timestamp can be (a date written as digits, 20230615123456.789; an
   // epoch in milliseconds with a fraction): the names give the order, not a time.
-  if (out.kind == TimeKind::Seconds && !(first * unit <= ImageInfo::kMaxTimeOrigin)) {
+  if (!(first * unit <= ImageInfo::kMaxTimeOrigin)) {
     out.kind = TimeKind::None;
     return out;
   }
+  out.kind = TimeKind::Seconds;
   for (std::size_t i : order) out.times.push_back(static_cast<double>((value(i) - first) * unit));
-  if (out.kind == TimeKind::Seconds) out.origin_s = static_cast<double>(first * unit);
+  out.origin_s = static_cast<double>(first * unit);
   return out;
 }
 
