@@ -508,18 +508,19 @@ PatchRunReport::PatchRunReport(const PatchTracks& tracks, const PatchEstimateRes
   if (!pr.start.hypotheses.empty()) rep.extra["start"] = startJson(pr.start);
 }
 
+std::function<void(int, int)> estimateProgress(const EstimateCli& e) {
+  if (e.quiet) return {};
+  const int passes = e.patches || e.est.filter.model == TrackModel::Point ? 1 : std::max(1, e.est.filter.passes);
+  return progressReporter("estimate", passes > 1 ? fmt::format("frames over {} passes", passes) : "frames");
+}
+
 /// The pipeline (pipeline/estimate.hpp) + report (+ overlay when `overlay_input` is set). Returns the exit code.
 int estimateAndReport(const Tracks& tracks, const EstimateCli& e, const TrackOverlay& overlay, double t_start,
                       bool write_tracks, const RunTracking* tracking) {
   EstimateResult r;
   std::vector<std::string> warnings;
-  // The plane models' filter runs over the frames once per pass (TrackFilterOptions::passes): the
-  // count is of frames over all passes.
-  const int passes = e.est.filter.model == TrackModel::Point ? 1 : std::max(1, e.est.filter.passes);
   try {
-    r = estimate(tracks, e.est, noteTo(e.quiet, &warnings),
-                 e.quiet ? std::function<void(int, int)>{}
-                         : progressReporter("estimate", passes > 1 ? fmt::format("frames over {} passes", passes) : "frames"));
+    r = estimate(tracks, e.est, noteTo(e.quiet, &warnings), estimateProgress(e));
   } catch (const std::invalid_argument& ex) {
     return fail(kBadInput, ex.what());
   } catch (const io::InputError& ex) {
@@ -591,8 +592,7 @@ int patchEstimateAndReport(const PatchTracks& tracks, const EstimateCli& e, cons
   PatchEstimateResult pr;
   std::vector<std::string> warnings;
   try {
-    pr = estimatePatches(tracks, e.pat, noteTo(e.quiet, &warnings),
-                         e.quiet ? std::function<void(int, int)>{} : progressReporter("estimate", "frames"));
+    pr = estimatePatches(tracks, e.pat, noteTo(e.quiet, &warnings), estimateProgress(e));
   } catch (const std::invalid_argument& ex) {
     return fail(kBadInput, ex.what());
   } catch (const std::exception& ex) {

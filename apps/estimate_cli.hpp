@@ -42,6 +42,10 @@ struct EstimateCli {
 void addEstimateOptions(CLI::App* a, EstimateCli* e);
 /// Checks and completes the options; a message when they are inconsistent.
 std::string finishEstimateOptions(EstimateCli* e);
+/// The progress of estimate() on stderr (none with --quiet): the plane models' filter runs over
+/// the frames once per pass (TrackFilterOptions::passes), so the count is of frames over all
+/// passes.
+std::function<void(int, int)> estimateProgress(const EstimateCli& e);
 
 /// The report of one estimate() run as `rsfm estimate` writes it: the result, the given camera,
 /// summary.json's "start" and "plane_finding". The Python module builds its summary with it too

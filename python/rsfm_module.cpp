@@ -118,8 +118,20 @@ cli::EstimateCli estimateOptions(const py::kwargs& kw, CLI::App* app) {
 
 /// (M, 4) rows frame, track, x, y -> Tracks, through the tracks.csv reader (docs/tracks.md), so
 /// an array is checked as a file is (one id per frame, ranges, ...).
-Tracks tracksFromArray(const Eigen::MatrixXd& a, const std::vector<int>& image_size,
-                       const std::optional<std::vector<double>>& principal_point, std::optional<double> fps) {
+/// The array's header (read_tracks' second value gives it back): image size, principal point,
+/// frame rate, time origin and the frame numbers the source dropped (docs/tracks.md).
+struct ArrayHeader {
+  std::optional<std::vector<int>> image_size;
+  std::optional<std::vector<double>> principal_point;
+  std::optional<double> fps, time_origin;
+  std::optional<std::vector<int>> dropped_frames;
+  bool any() const { return image_size || principal_point || fps || time_origin || dropped_frames; }
+};
+
+Tracks tracksFromArray(const Eigen::MatrixXd& a, const ArrayHeader& head) {
+  const std::vector<int>& image_size = *head.image_size;
+  const auto& principal_point = head.principal_point;
+  const auto& fps = head.fps;
   if (a.cols() != 4) inputError(fmt::format("tracks array: {} columns, expected 4 (frame, track, x, y)", a.cols()));
   if (a.rows() == 0) inputError("tracks array: no rows");
   if (image_size.size() != 2) inputError("image_size must be (width, height)");
@@ -129,24 +141,48 @@ Tracks tracksFromArray(const Eigen::MatrixXd& a, const std::vector<int>& image_s
   if (principal_point && principal_point->size() != 2) inputError("image_principal_point must be (x, y)");
   const double w = image_size[0], h = image_size[1];
   const double cx = principal_point ? (*principal_point)[0] : (w - 1) / 2, cy = principal_point ? (*principal_point)[1] : (h - 1) / 2;
-  std::string csv = fmt::format("# rsfm-tracks 1\n# image_size {} {}\n# principal_point {:.17g} {:.17g}\n{}# frames {:.17g} {:.17g}\n"
-                                "# source numpy array\nframe,track,x,y\n",
+  std::string csv = fmt::format("# rsfm-tracks 1\n# image_size {} {}\n# principal_point {:.17g} {:.17g}\n{}{}# frames {:.17g} {:.17g}\n"
+                                "# source numpy array\n",
                                 image_size[0], image_size[1], cx, cy, fps ? fmt::format("# fps {:.17g}\n", *fps) : "",
+                                head.time_origin ? fmt::format("# time_origin {:.17g}\n", *head.time_origin) : "",
                                 a(order.front(), 0), a(order.back(), 0));
+  if (head.dropped_frames)  // the reader's lines are bounded: 200 numbers a line
+    for (std::size_t i = 0; i < head.dropped_frames->size(); i += 200) {
+      csv += "# dropped_frames";
+      for (std::size_t j = i; j < std::min(head.dropped_frames->size(), i + 200); ++j) csv += fmt::format(" {}", (*head.dropped_frames)[j]);
+      csv += "\n";
+    }
+  csv += "frame,track,x,y\n";
+  const long header_lines = std::count(csv.begin(), csv.end(), '\n');
   for (Eigen::Index i : order) csv += fmt::format("{:.17g},{:.17g},{:.17g},{:.17g}\n", a(i, 0), a(i, 1), a(i, 2), a(i, 3));
   std::istringstream in(csv);
-  return io::readTracks(in, fmt::format("tracks array (rows sorted by frame; line L is sorted row L - {})", fps ? 8 : 7));
+  return io::readTracks(in, fmt::format("tracks array (rows sorted by frame; line L is sorted row L - {})", header_lines));
 }
 
-Tracks tracksOf(const py::object& tracks, const std::optional<std::vector<int>>& image_size,
-                const std::optional<std::vector<double>>& principal_point, std::optional<double> fps) {
+/// A tracks file's header as the keyword arguments that give it to estimate() with its rows.
+py::dict headerDict(const Tracks& t) {
+  py::dict d;
+  d["image_size"] = py::make_tuple(t.image.width, t.image.height);
+  d["image_principal_point"] = py::make_tuple(t.image.cx, t.image.cy);
+  d["fps"] = t.image.fps > 0 ? py::cast(t.image.fps) : py::none();
+  d["time_origin"] = t.image.fps > 0 && t.image.time_origin != 0 ? py::cast(t.image.time_origin) : py::none();
+  std::vector<int> dropped;
+  for (int k = 0; k + 1 < t.numFrames(); ++k)
+    for (int f = t.frameNumber(k) + 1; f < t.frameNumber(k + 1); ++f) dropped.push_back(f);
+  d["dropped_frames"] = py::cast(dropped);
+  d["readout_direction"] = readoutDirectionName(t.image.readout_direction);
+  return d;
+}
+
+Tracks tracksOf(const py::object& tracks, const ArrayHeader& h) {
   if (py::isinstance<py::str>(tracks) || py::hasattr(tracks, "__fspath__")) {
-    if (image_size || principal_point || fps)
-      inputError("image_size, image_principal_point and fps are for an array of tracks: a tracks file states them");
+    if (h.any())
+      inputError("image_size, image_principal_point, fps, time_origin and dropped_frames are for an array of tracks: a tracks "
+                 "file states them");
     return io::readTracks(std::string(py::str(py::module_::import("os").attr("fspath")(tracks))));
   }
-  if (!image_size) inputError("an array of tracks needs image_size=(width, height)");
-  return tracksFromArray(tracks.cast<Eigen::MatrixXd>(), *image_size, principal_point, fps);
+  if (!h.image_size) inputError("an array of tracks needs image_size=(width, height)");
+  return tracksFromArray(tracks.cast<Eigen::MatrixXd>(), h);
 }
 
 /// Tracks as rows (frame, track, x, y): what estimate() takes.
@@ -266,14 +302,15 @@ std::function<void(const std::string&)> noteTo(bool quiet) {
 
 py::dict estimatePy(const py::object& tracks, const std::optional<std::vector<int>>& image_size,
                     const std::optional<std::vector<double>>& principal_point, std::optional<double> fps,
+                    std::optional<double> time_origin, const std::optional<std::vector<int>>& dropped_frames,
                     const py::kwargs& kw) {
   CLI::App app{"rsfm.estimate"};
   const cli::EstimateCli e = estimateOptions(kw, &app);
-  const Tracks t = tracksOf(tracks, image_size, principal_point, fps);
+  const Tracks t = tracksOf(tracks, {image_size, principal_point, fps, time_origin, dropped_frames});
   EstimateResult r;
   {
     py::gil_scoped_release release;
-    r = estimate(t, e.est, noteTo(e.quiet), e.quiet ? std::function<void(int, int)>{} : cli::progressReporter("estimate", "frames"));
+    r = estimate(t, e.est, noteTo(e.quiet), cli::estimateProgress(e));
   }
   py::dict d = resultDict(t, r, e);
   return d;
@@ -289,7 +326,7 @@ py::dict estimatePatchesPy(const py::object& patches, const py::kwargs& kw) {
   PatchEstimateResult pr;
   {
     py::gil_scoped_release release;
-    pr = estimatePatches(t, e.pat, noteTo(e.quiet), e.quiet ? std::function<void(int, int)>{} : cli::progressReporter("estimate", "frames"));
+    pr = estimatePatches(t, e.pat, noteTo(e.quiet), cli::estimateProgress(e));
   }
   return patchResultDict(t, pr);
 }
@@ -308,7 +345,7 @@ py::dict runPy(const std::string& video, const py::kwargs& kw) {
       py::gil_scoped_release release;
       pt = vision::trackPatchesInput(video, tc.patches, tc.range,
                                      e.quiet ? std::function<void(int, int)>{} : cli::progressReporter("track", "frames"));
-      pr = estimatePatches(pt, e.pat, noteTo(e.quiet), e.quiet ? std::function<void(int, int)>{} : cli::progressReporter("estimate", "frames"));
+      pr = estimatePatches(pt, e.pat, noteTo(e.quiet), cli::estimateProgress(e));
     }
     py::dict d = patchResultDict(pt, pr);
     d["image_size"] = py::make_tuple(pt.image.width, pt.image.height);
@@ -319,10 +356,11 @@ py::dict runPy(const std::string& video, const py::kwargs& kw) {
   {
     py::gil_scoped_release release;
     t = vision::trackInput(video, tc.tracker, tc.range, e.quiet ? std::function<void(int, int)>{} : cli::progressReporter("track", "frames"));
-    r = estimate(t, e.est, noteTo(e.quiet), e.quiet ? std::function<void(int, int)>{} : cli::progressReporter("estimate", "frames"));
+    r = estimate(t, e.est, noteTo(e.quiet), cli::estimateProgress(e));
   }
   py::dict d = resultDict(t, r, e);
   d["tracks"] = trackRows(t);
+  d["tracks_header"] = headerDict(t);
   d["image_size"] = py::make_tuple(t.image.width, t.image.height);
   d["readout_direction"] = readoutDirectionName(t.image.readout_direction);
   return d;
@@ -470,13 +508,17 @@ PYBIND11_MODULE(_rsfm, m) {
   });
 
   m.def("estimate", &estimatePy, py::arg("tracks"), py::kw_only(), py::arg("image_size") = py::none(),
-        py::arg("image_principal_point") = py::none(), py::arg("fps") = py::none(),
+        py::arg("image_principal_point") = py::none(), py::arg("fps") = py::none(), py::arg("time_origin") = py::none(),
+        py::arg("dropped_frames") = py::none(),
         R"doc(The pipeline of `rsfm estimate` (plane finding, the homography start, the filter, the final
 refinement) on tracks.
 
 tracks: a tracks.csv path (docs/tracks.md), or an (M, 4) array of rows (frame, track, x, y) in
     pixels, with image_size=(width, height) (and image_principal_point=(x, y), the tracks' image
-    centre, default the middle; fps, the source's frame rate, makes the timestamps seconds).
+    centre, default the middle; fps, the source's frame rate, makes the timestamps seconds;
+    time_origin, the time of frame 0 in seconds (with fps); dropped_frames, the frame numbers the
+    source dropped, which no row names; read_tracks() gives all of them back as a dict:
+    estimate(rows, **header)).
     (principal_point=(x, y) is the CLI's --principal-point: a known principal point, held.)
 **options: the command line's options, dashes as underscores (model="plane", focal_px=612,
     refine="none", quiet=True, ...; rsfm.options("estimate") lists them with their defaults).
@@ -503,7 +545,8 @@ nz in the first camera frame, normal sd in deg; NaN sd when the structure is not
 frames/img%04d.png, or a folder of images), then estimate() on the tracks.
 
 **options: those of `rsfm run` (tracker and estimate options; rsfm.options("run")).
-Returns estimate()'s dict plus "tracks" ((M, 4) rows frame, track, x, y), "image_size" and
+Returns estimate()'s dict plus "tracks" ((M, 4) rows frame, track, x, y), "tracks_header" (read_tracks()'
+header: estimate(r["tracks"], **r["tracks_header"]) estimates them again), "image_size" and
 "readout_direction" (the rolling shutter's across the image: "left" for a video turned 90 degrees
 by its rotation metadata; give it back as readout_direction= with the rows); with
 model="patches", estimate_patches()'s dict plus "image_size".)doc");
@@ -513,12 +556,13 @@ model="patches", estimate_patches()'s dict plus "image_size".)doc");
       "read_tracks",
       [](const std::string& path) {
         const Tracks t = io::readTracks(path);
-        return py::make_tuple(trackRows(t), py::make_tuple(t.image.width, t.image.height),
-                              py::make_tuple(t.image.cx, t.image.cy), t.image.fps > 0 ? py::cast(t.image.fps) : py::none());
+        return py::make_tuple(trackRows(t), headerDict(t));
       },
       py::arg("path"),
-      "Reads a tracks.csv (docs/tracks.md): returns (rows (M, 4) frame, track, x, y; (width, height); (c_x, c_y); "
-      "fps or None).");
+      "Reads a tracks.csv (docs/tracks.md): returns (rows, header): rows (M, 4) frame, track, x, y; header a dict of "
+      "estimate()'s keyword arguments for an array, image_size (width, height), image_principal_point (c_x, c_y), fps "
+      "(None: not known), time_origin (None: none), dropped_frames (frame numbers) and readout_direction, so that "
+      "estimate(rows, **header) is estimate(path).");
 
   py::class_<PlaneFilterPy>(m, "PlaneFilter", R"doc(The plane filter (Alon & Sclaroff's model, docs/filter.md), one frame at a time.
 

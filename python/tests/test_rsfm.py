@@ -100,15 +100,46 @@ def test_estimate_gives_the_cli_numbers(tracks_file, tmp_path):
     labels = np.loadtxt(out / "labels.csv", delimiter=",", skiprows=1, dtype=int)
     assert np.array_equal(r["labels"][labels[:, 0]], labels[:, 1])
     # Same run from the array of the same rows: the same numbers.
-    rows, size, pp, fps = rsfm.read_tracks(str(tracks_file))
-    assert fps is None and r["summary"]["timestamps"] == "frame"
-    r2 = rsfm.estimate(rows, image_size=size, image_principal_point=pp, model="planes", quiet=True)
+    rows, header = rsfm.read_tracks(str(tracks_file))
+    assert header["fps"] is None and header["time_origin"] is None and header["dropped_frames"] == []
+    assert r["summary"]["timestamps"] == "frame"
+    r2 = rsfm.estimate(rows, **header, model="planes", quiet=True)
     assert r2["focal_px"] == pytest.approx(r["focal_px"], rel=1e-12)
     # With a frame rate the timestamps are seconds; nothing else changes.
+    size, pp = header["image_size"], header["image_principal_point"]
     r3 = rsfm.estimate(rows, image_size=size, image_principal_point=pp, fps=25.0, model="planes", quiet=True)
     assert r3["summary"]["timestamps"] == "seconds" and r3["summary"]["fps"] == 25.0
     assert np.allclose(r3["trajectory"][:, 0], r["trajectory"][:, 0] / 25.0)
     assert np.array_equal(r3["trajectory"][:, 1:], r["trajectory"][:, 1:])
+
+
+def test_read_tracks_gives_back_the_whole_header(tracks_file, tmp_path):
+    # A tracks file of images named by their times (a rate and a time origin) whose source dropped
+    # frames 20-22: read_tracks' header gives estimate() the same file, so the same estimate, the
+    # same timestamps and the dropped frames as dropped (not as frames where nothing was tracked).
+    lines = tracks_file.read_text().splitlines()
+    head = [l for l in lines if l.startswith("#")]
+    body = [l for l in lines if not l.startswith("#") and not l.startswith("frame,") and not (20 <= int(l.split(",")[0]) <= 22)]
+    dropped = tmp_path / "dropped.csv"
+    dropped.write_text("\n".join(head + ["# fps 30", "# time_origin 1305031102.175304", "# dropped_frames 20-22",
+                                         "frame,track,x,y"] + body) + "\n")
+    rows, header = rsfm.read_tracks(str(dropped))
+    assert header["fps"] == 30.0 and header["time_origin"] == 1305031102.175304 and header["dropped_frames"] == [20, 21, 22]
+    assert header["readout_direction"] == "down"
+    from_file = rsfm.estimate(str(dropped), quiet=True)
+    from_rows = rsfm.estimate(rows, **header, quiet=True)
+    assert from_rows["summary"]["unobserved_frames"] == from_file["summary"]["unobserved_frames"] == []
+    assert from_rows["summary"]["time_origin_s"] == pytest.approx(1305031102.175304, abs=1e-9)
+    assert np.array_equal(from_rows["trajectory"], from_file["trajectory"])
+    assert from_rows["trajectory"][0, 0] == pytest.approx(1305031102.175304, abs=1e-6)
+    frames = set(np.rint((from_rows["trajectory"][:, 0] - 1305031102.175304) * 30).astype(int))
+    assert {19, 23} <= frames and not frames & {20, 21, 22}
+    # The rows alone (no header): the gap is three frames where nothing was tracked.
+    bare = rsfm.estimate(rows, image_size=header["image_size"], quiet=True)
+    assert bare["summary"]["unobserved_frames"] == [[20, 22]]
+    # A tracks file states its own header.
+    with pytest.raises(rsfm.InputError, match="a tracks file states them"):
+        rsfm.estimate(str(dropped), dropped_frames=[20], quiet=True)
 
 
 def test_options_take_effect(scene):
