@@ -272,11 +272,19 @@ TEST(FrameSource, AFolderIsReadInTheOrderOfItsNamesNumbersWhichGiveTheTimes) {
     EXPECT_NEAR(info.fps, 25.0, 1e-6) << digits;
     EXPECT_NEAR(info.time_origin_s, 1403636579.763, 1e-6) << digits;
   }
-  // A date written as digits with no fraction (14 digits): the number orders the frames; its
-  // steps (a second's 1, a minute's 41) are no time, and no rate is read.
-  EXPECT_EQ(readAll(folder("date14", {"20230615123500.png", "20230615123459.png"}), &info), (std::vector<int>{1, 0}));
+  // A date written as digits with no fraction (14 digits), one image a second across a minute:
+  // the number orders the frames; its steps (a second's 1, the minute's 41) are no frame gaps,
+  // and no rate is read.
+  EXPECT_EQ(readAll(folder("date14", {"20230615123501.png", "20230615123459.png", "20230615123500.png", "20230615123458.png"}), &info),
+            (std::vector<int>{3, 1, 2, 0}));
   EXPECT_EQ(info.fps, 0.0);
   EXPECT_EQ(info.time_origin_s, 0.0);
+  EXPECT_TRUE(info.frame_offsets.empty());
+  // Epochs of two units in one folder (a stray name): no time read, the order only.
+  EXPECT_EQ(readAll(folder("mixedunits", {"1403636579763.png", "1403636579763000.png", "1403636579803.png"}), &info),
+            (std::vector<int>{0, 2, 1}));
+  EXPECT_EQ(info.fps, 0.0);
+  EXPECT_TRUE(info.frame_offsets.empty());
   // Names with no one number (two numbers, prefixes that differ): natural order, no times.
   EXPECT_EQ(readAll(folder("mixed", {"b2_x.png", "a10.png", "a9.png", "b10_x.png"}), &info), (std::vector<int>{2, 1, 0, 3}));
   EXPECT_TRUE(info.frame_offsets.empty());

@@ -396,7 +396,7 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
   // up to kWeakEigen are the data's, however weak (an edge-on plane: 1e-13..1e-11; a translation
   // whose perspective barely shows the affine ambiguity: 1e-11..1e-9): they are left out of the
   // pseudo-inverse, which the clustered widening below works on, and their variance is added to
-  // cov after it; a quantity whose variance they carry more than half of is not estimable.
+  // cov after it, unwidened; the sd limits judge what they leave.
   const double dmax = std::max(1e-300, S.diagonal().maxCoeff());
   Eigen::VectorXd d(n);
   for (int i = 0; i < n; ++i) d[i] = 1.0 / std::sqrt(S(i, i) > 1e-12 * dmax ? S(i, i) : dmax);
@@ -603,7 +603,12 @@ PlaneBatchBound planeBatchBound(const PlaneBatchData& data, const PlaneBatchStat
     planeJackknife(data, iN, tp, sandwich_N, &out);
   }
   if (out.weak_dim > 0) {
-    // The weak directions' variance (above), in the original units.
+    // The weak directions' variance (above), in the original units, as the model gives it: not
+    // widened by the tracks' own check, which sees only the pseudo-inverse's directions. Widened
+    // by each parameter's factor instead (tried on 2026-12-07), a 1200-frame orbit's focal
+    // length read 8.7 % (its error -4.5 %) and its planes 1.0-1.7 deg (errors 0.5-0.6 deg):
+    // two to three times too wide; unwidened, 3.6 % and 0.5-0.8 deg (docs/estimate.md, "Null,
+    // weak and seen directions").
     Eigen::MatrixXd Ws = d.asDiagonal() * out.weak_scaled;
     for (int i = 0; i < out.weak_dim; ++i) Ws.col(i) /= std::sqrt(out.weak_lambda[i]);
     out.cov.noalias() += Ws * Ws.transpose();

@@ -511,14 +511,14 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
   const auto angles_tmp = files->write(dir / "angles.csv", ac);
   // labels.csv
   // last_frame_used: the last frame whose observation the estimate used (a track that left its
-  // plane: where it left it), -1 for a track on no plane.
+  // plane: the last frame before it left it), -1 for a track on no plane.
   std::string lc = "track,label,first_frame,last_frame,last_frame_used\n";
   const auto spans = trackSpans(*r.tracks);
   for (size_t id = 0; id < spans.size(); ++id) {
     if (spans[id].first < 0) continue;
     const int label = (*r.labels)[id];
-    const int cut = r.last_used && id < r.last_used->size() ? (*r.last_used)[id] : -1;
-    const int used = label < 0 ? -1 : r.tracks->frameNumber(cut >= 0 ? std::min(cut, spans[id].last) : spans[id].last);
+    const int k_used = !r.last_used ? spans[id].last : id < r.last_used->size() ? (*r.last_used)[id] : -1;
+    const int used = label < 0 || k_used < 0 ? -1 : r.tracks->frameNumber(k_used);
     lc += fmt::format("{},{},{},{},{}\n", id, label, r.tracks->frameNumber(spans[id].first), r.tracks->frameNumber(spans[id].last), used);
   }
   files->write(dir / "labels.csv", lc);

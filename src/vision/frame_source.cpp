@@ -149,16 +149,19 @@ NamedFrames orderImageFiles(std::vector<fs::path> files) {
   const auto value = [&](std::size_t i) {
     return std::strtold((nums[i].integer + (nums[i].fraction.empty() ? "" : "." + nums[i].fraction)).c_str(), nullptr);
   };
-  const long double first = value(order[0]);
-  // Integers that are epochs (since 1970, between 2001 and 2286): 13 digits milliseconds, 16
-  // microseconds, 19 nanoseconds (EuRoC's, ROS's). No frame counter reaches 10^12; a date
-  // written as digits (20230615123456, 14) falls between and numbers the frames.
-  const long double unit = fractional                       ? 1.0L
-                           : first >= 1e17L                  ? 1e-9L
-                           : first >= 1e15L && first < 1e16L ? 1e-6L
-                           : first >= 1e12L && first < 1e13L ? 1e-3L
-                                                             : 0.0L;
-  if (unit == 0.0L) {  // frame numbers
+  const long double first = value(order[0]), last = value(order.back());
+  // Integers: epochs (since 1970, between 2001 and 2286) when first and last lie in one range:
+  // 13 digits milliseconds, 16 microseconds, 19 nanoseconds (EuRoC's, ROS's); frame numbers
+  // below 10^12 (no frame counter reaches it); anything else no time (a date written as digits,
+  // 20230615123456: its steps across a minute or an hour are no frame gaps), ordered only.
+  const auto within = [&](long double lo, long double hi) { return first >= lo && last < hi; };
+  const long double unit = fractional               ? 1.0L
+                           : within(1e17L, 1e19L)   ? 1e-9L
+                           : within(1e15L, 1e16L)   ? 1e-6L
+                           : within(1e12L, 1e13L)   ? 1e-3L
+                                                    : 0.0L;
+  if (unit == 0.0L) {
+    if (last >= 1e12L) return out;  // no time: kind None, ordered by the number
     out.kind = TimeKind::FrameNumbers;
     for (std::size_t i : order) out.times.push_back(static_cast<double>(value(i) - first));
     return out;

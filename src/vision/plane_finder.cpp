@@ -892,7 +892,7 @@ PlaneFinding findPlanesWith(const Tracks& tracks, const PlaneFinderOptions& o, c
           const TrackPoint* pk = tracks.find(k, id);
           if (!pk || c.support[k] < kMinSupport) continue;
           const cv::Point2d q = apply(c.H[k] * Hb_inv, pt(*pb));
-          ok = std::hypot(q.x - pk->px.x(), q.y - pk->px.y()) < verify_px;
+          ok = std::hypot(q.x - pk->px.x(), q.y - pk->px.y()) < verify_px;  // NaN (a singular H) fails
           moved = std::max(moved, (pk->px - pb->px).norm());
           ++checked;
         }

@@ -167,9 +167,10 @@ void planeBatchReferenceResidual(const Eigen::Vector2d& ref, double beta, const 
 /// (frame 0 as reference residuals) with the gauge component removed, the per-frame motions
 /// eliminated by Schur complement (each frame needs >= 4 observations: otherwise ok = false), and
 /// its null space found by eigen-decomposition. A quantity is estimable when its gradient is
-/// orthogonal to that null space and the weak directions (eigenvalues between rounding and 1e-10
-/// of the largest) carry at most half its variance; its bound is then the pseudo-inverse's
-/// quadratic form plus the weak directions' share.
+/// orthogonal to that null space (rounding-level eigenvalues); its bound is the pseudo-inverse's
+/// quadratic form plus the share of the weak directions (eigenvalues between rounding and 1e-10
+/// of the largest; the first widened by the tracks' own check, the second as the model gives it),
+/// and the callers' sd limits judge it.
 /// Pure rotation leaves the planes in the null space; pure translation leaves beta and the
 /// planes' tilt (the affine ambiguity).
 struct PlaneBatchBoundOptions {

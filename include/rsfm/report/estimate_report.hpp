@@ -30,9 +30,9 @@ struct GivenCamera {
 struct EstimateReport {
   const Tracks* tracks = nullptr;
   const std::vector<int>* labels = nullptr;  ///< per track id: plane, -1 outlier, -2 unused
-  /// Per track id (may be shorter than labels): the index in `tracks` of the last frame whose
-  /// observation the estimate used, for a track used only up to where it left its plane
-  /// (PlaneFinding::cut_after); -1, or absent: its whole life. Null: none cut.
+  /// Per track id: the index in `tracks` of the last frame whose observation the estimate used
+  /// (before the track's last for one that left its plane, PlaneFinding::cut_after; an estimate
+  /// that ended early; a held still stretch); -1: none. Null: each track's last frame.
   const std::vector<int>* last_used = nullptr;
   const TrackFilterResult* result = nullptr;  ///< the online filter's run
   const RefineResult* refined = nullptr;      ///< the refinement (null or not ok: none)

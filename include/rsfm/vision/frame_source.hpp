@@ -22,7 +22,7 @@ struct FrameRange {
 /// What FrameSource::time() counts.
 enum class TimeKind {
   None,          ///< no time (a pattern; a folder whose names carry no one number)
-  Seconds,       ///< seconds: a video's presentation times; image names in seconds (TUM: 1305031102.175304.png) or nanoseconds (EuRoC, ROS: 1403636579763555584.png)
+  Seconds,       ///< seconds: a video's presentation times; image names in seconds (TUM: 1305031102.175304.png), milliseconds, microseconds or nanoseconds (EuRoC, ROS: 1403636579763555584.png) since 1970
   FrameNumbers,  ///< image names that number the frames (000123.png, frame_17.jpg): the unit is one frame
 };
 
@@ -31,10 +31,11 @@ enum class TimeKind {
 /// are ordered by the number and `times` holds it (relative to the first file's; `origin_s` the
 /// first's in seconds when the kind is Seconds); else they are ordered by name with runs of
 /// digits compared as numbers (img2.png before img10.png) and the kind is None. A number with a
-/// fractional part is seconds, an integer of 1e17 or more nanoseconds (an epoch in ns), any other
-/// integer a frame number (epochs in ms or us too: the order and the gaps, no rate); seconds
-/// beyond ImageInfo::kMaxTimeOrigin are no time (kind None, ordered by the number). Two files
-/// with one number throw InputError naming both.
+/// fractional part is seconds; integers are epochs when they all lie in one of [1e12, 1e13)
+/// (milliseconds), [1e15, 1e16) (microseconds) or [1e17, 1e19] (nanoseconds), frame numbers below
+/// 1e12, and no time otherwise (a date written as digits, 20230615123456: kind None, ordered by
+/// the number, no frame gaps read); seconds beyond ImageInfo::kMaxTimeOrigin are no time either.
+/// Two files with one number throw InputError naming both.
 struct NamedFrames {
   std::vector<std::filesystem::path> files;
   TimeKind kind = TimeKind::None;
