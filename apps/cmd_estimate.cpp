@@ -419,8 +419,6 @@ void trimAndSay(T* t, const char* what, const std::string& file, bool quiet) {
 }  // namespace
 
 namespace {
-// The plane tracks used up to where they left their plane (a track whose plane was later left
-// out, its label -1, is not counted).
 /// The held frames as input frame numbers, one [first, last] pair per stretch.
 nlohmann::json heldFrames(const Tracks& tracks, const vision::StillStart& s) {
   nlohmann::json runs = nlohmann::json::array();

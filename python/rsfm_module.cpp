@@ -116,8 +116,6 @@ cli::EstimateCli estimateOptions(const py::kwargs& kw, CLI::App* app) {
   return e;
 }
 
-/// (M, 4) rows frame, track, x, y -> Tracks, through the tracks.csv reader (docs/tracks.md), so
-/// an array is checked as a file is (one id per frame, ranges, ...).
 /// The array's header (read_tracks' second value gives it back): image size, principal point,
 /// frame rate, time origin and the frame numbers the source dropped (docs/tracks.md).
 struct ArrayHeader {
@@ -128,6 +126,8 @@ struct ArrayHeader {
   bool any() const { return image_size || principal_point || fps || time_origin || dropped_frames; }
 };
 
+/// (M, 4) rows frame, track, x, y -> Tracks, through the tracks.csv reader (docs/tracks.md), so
+/// an array is checked as a file is (one id per frame, ranges, ...).
 Tracks tracksFromArray(const Eigen::MatrixXd& a, const ArrayHeader& head) {
   const std::vector<int>& image_size = *head.image_size;
   const auto& principal_point = head.principal_point;
