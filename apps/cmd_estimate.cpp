@@ -431,30 +431,7 @@ EstimateRunReport::EstimateRunReport(const Tracks& tracks, const EstimateResult&
   const vision::PlaneFinding& pf = r.planes;
   rep.tracks = &tracks;
   rep.labels = &r.labels();
-  // Each track's last observation the estimate used: up to its cut where it left its plane (the
-  // plane finder's cuts count from the reference frame, estimate(): after a still start from its
-  // last still frame), up to the last estimated frame (an estimate that ended early), and not in
-  // a held still stretch (left out of every stage). Indices of the input tracks.
-  {
-    const int frames = tracks.numFrames();
-    std::vector<char> held(static_cast<std::size_t>(frames), 0);
-    for (const auto& [a, b] : vision::heldStretches(r.still))
-      for (int k = a; k <= b && k < frames; ++k) held[static_cast<std::size_t>(k)] = 1;
-    int last_k = -1;  // the last estimated frame
-    if (!r.online.frames.empty())
-      for (int k = frames - 1; k >= 0 && last_k < 0; --k)
-        if (tracks.frameNumber(k) <= r.online.frames.back().frame) last_k = k;
-    last_used.assign(static_cast<std::size_t>(tracks.idBound()), -1);
-    for (int k = 0; k <= last_k; ++k) {
-      if (held[static_cast<std::size_t>(k)]) continue;
-      for (const TrackPoint& p : tracks.frames[static_cast<std::size_t>(k)]) {
-        const auto id = static_cast<std::size_t>(p.id);
-        const int cut = id < r.planes.cut_after.size() && r.planes.cut_after[id] >= 0 ? r.still.still_frames + r.planes.cut_after[id] : frames;
-        if (k <= cut) last_used[id] = k;
-      }
-    }
-  }
-  rep.last_used = &last_used;
+  rep.last_used = &r.last_used;
   rep.result = &r.online;
   rep.refined = &r.refined;
   if (r.camera) {

@@ -56,7 +56,6 @@ struct EstimateRunReport {
   EstimateRunReport& operator=(const EstimateRunReport&) = delete;
   report::EstimateReport rep;
   std::optional<report::GivenCamera> given;
-  std::vector<int> last_used;  ///< rep.last_used: each track's last frame used, an index of the input tracks
 };
 
 /// The same for a patch run (estimatePatches): the result, the motion check, "start".

@@ -146,12 +146,11 @@ Tracks tracksFromArray(const Eigen::MatrixXd& a, const ArrayHeader& head) {
                                 image_size[0], image_size[1], cx, cy, fps ? fmt::format("# fps {:.17g}\n", *fps) : "",
                                 head.time_origin ? fmt::format("# time_origin {:.17g}\n", *head.time_origin) : "",
                                 a(order.front(), 0), a(order.back(), 0));
-  if (head.dropped_frames)  // the reader's lines are bounded: 200 numbers a line
-    for (std::size_t i = 0; i < head.dropped_frames->size(); i += 200) {
-      csv += "# dropped_frames";
-      for (std::size_t j = i; j < std::min(head.dropped_frames->size(), i + 200); ++j) csv += fmt::format(" {}", (*head.dropped_frames)[j]);
-      csv += "\n";
-    }
+  if (head.dropped_frames) {  // the reader checks them (inside the range, no row on one)
+    std::vector<int> sorted = *head.dropped_frames;
+    std::sort(sorted.begin(), sorted.end());
+    csv += io::droppedFramesLines(consecutiveStretches(sorted));
+  }
   csv += "frame,track,x,y\n";
   const long header_lines = std::count(csv.begin(), csv.end(), '\n');
   for (Eigen::Index i : order) csv += fmt::format("{:.17g},{:.17g},{:.17g},{:.17g}\n", a(i, 0), a(i, 1), a(i, 2), a(i, 3));
@@ -167,8 +166,8 @@ py::dict headerDict(const Tracks& t) {
   d["fps"] = t.image.fps > 0 ? py::cast(t.image.fps) : py::none();
   d["time_origin"] = t.image.fps > 0 && t.image.time_origin != 0 ? py::cast(t.image.time_origin) : py::none();
   std::vector<int> dropped;
-  for (int k = 0; k + 1 < t.numFrames(); ++k)
-    for (int f = t.frameNumber(k) + 1; f < t.frameNumber(k + 1); ++f) dropped.push_back(f);
+  for (const auto& [a, b] : t.skippedStretches())
+    for (int f = a; f <= b; ++f) dropped.push_back(f);
   d["dropped_frames"] = py::cast(dropped);
   d["readout_direction"] = readoutDirectionName(t.image.readout_direction);
   return d;
@@ -265,6 +264,12 @@ py::dict resultDict(const Tracks& tracks, const EstimateResult& r, const cli::Es
   // Labels per track id: plane index, -1 outlier, -2 unused.
   const auto& lab = r.labels();
   d["labels"] = py::array_t<int>(static_cast<py::ssize_t>(lab.size()), lab.data());
+  // Per track id: the frame number of the last observation the estimate used (labels.csv's
+  // last_frame_used), -1 none.
+  std::vector<int> used(r.last_used.size(), -1);
+  for (std::size_t id = 0; id < used.size(); ++id)
+    if (r.last_used[id] >= 0) used[id] = tracks.frameNumber(r.last_used[id]);
+  d["last_frame_used"] = py::array_t<int>(static_cast<py::ssize_t>(used.size()), used.data());
   return d;
 }
 

@@ -124,9 +124,13 @@ def main():
                 ax[r].plot(d["frame"], d[key], color=c, lw=1.4, label=f"plane {p} (filter)")
                 ax[r].fill_between(d["frame"], lo, hi, color=c, alpha=0.2, lw=0)
             if p in refined:
+                # NA sd: the refinement did not determine the plane (dotted, no band).
                 v, sd = refined[p][r], refined[p][2]
-                ax[r].axhline(v, color=c, ls="--", lw=1.0, label=f"plane {p} refined" if r == 0 else None)
-                ax[r].axhspan(v - sd, v + sd, color=c, alpha=0.08, lw=0)
+                nd = math.isnan(sd)
+                ax[r].axhline(v, color=c, ls=":" if nd else "--", lw=1.0,
+                              label=(f"plane {p} refined" + (" (not determined)" if nd else "")) if r == 0 else None)
+                if not nd:
+                    ax[r].axhspan(v - sd, v + sd, color=c, alpha=0.08, lw=0)
     ax[0].set_ylabel("normal azimuth atan2(nx, nz) (deg)")
     ax[1].set_ylabel("normal elevation asin(-ny) (deg)")
     ax[1].set_xlabel("frame")
@@ -155,8 +159,10 @@ def main():
                     alpha=0.2, lw=0)
     if -1 in refined:
         v, sd = refined[-1]
-        ax.axhline(v, color="k", ls="--", lw=1.0, label="refined")
-        ax.axhspan(v - sd, v + sd, color="k", alpha=0.08, lw=0)
+        nd = math.isnan(sd)  # NA sd: the refinement did not determine the focal length (dotted, no band)
+        ax.axhline(v, color="k", ls=":" if nd else "--", lw=1.0, label="refined (not determined)" if nd else "refined")
+        if not nd:
+            ax.axhspan(v - sd, v + sd, color="k", alpha=0.08, lw=0)
         ax.legend(fontsize=8)
     finish(fig, ax, "focal length (px)", "Focal length estimate (1-sigma band)", sys.argv[7], sys.argv[8])
 

@@ -162,12 +162,17 @@ PY
 # the reason in summary.json.
 zcat /usr/share/doc/opencv-doc/opencv4/html/cup.mp4.gz >"$TMP/cup.mp4"
 "$RSFM" run "$TMP/cup.mp4" --out "$TMP/cup" --no-overlay --no-plots --quiet
-/usr/bin/python3 - "$TMP/cup/summary.json" <<'PY'
-import json, sys
+/usr/bin/python3 - "$TMP/cup/summary.json" "$TMP/cup/planes.csv" <<'PY'
+import csv, json, sys
 s = json.load(open(sys.argv[1]))
 why = s.get("not_determined_why") or ""
 print(f"opencv-doc cup.mp4: {s['frames']} frames estimated, focal determined {s.get('focal_determined')}, planes determined "
       f"{s.get('plane_determined')}; why: {why[:140]}")
 ok = not s.get("focal_determined") and not any(s.get("plane_determined") or []) and "focal length" in why
+# planes.csv's refined rows print no sd for what is not determined (docs/outputs.md).
+refined = [r for r in csv.DictReader(open(sys.argv[2])) if r["estimate"] == "refined"]
+sds = {k: sorted({r[k] for r in refined}) for k in ("beta_sd", "focal_sd_px", "normal_sd_deg", "distance_sd")}
+print(f"  planes.csv refined rows: {len(refined)}, their sds {sds}")
+ok = ok and len(refined) >= 1 and all(v == ["NA"] for v in sds.values())
 sys.exit(0 if ok else 1)
 PY

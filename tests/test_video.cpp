@@ -199,6 +199,21 @@ TEST(FrameSource, DroppedFramesAreFoundFromTheTimestamps) {
   for (int k : {0, 1, 2, 4, 5, 8, 9}) t.push_back(std::round(k * 1000.0 / 30.0) / 1000.0);
   EXPECT_EQ(vision::droppedFrameOffsets(t, &interval), (std::vector<int>{0, 1, 2, 4, 5, 8, 9}));
   EXPECT_NEAR(1.0 / interval, 30.0, 0.05);
+  // 400 frames/s in milliseconds: gaps of 2 and 3 ms (the median 2 ms made each 3 ms gap a
+  // dropped frame); nothing dropped, then frames 17 and 30-31 gone.
+  for (const bool drop : {false, true}) {
+    std::vector<double> h;
+    std::vector<int> kept;
+    for (int k = 0; k < 60; ++k)
+      if (!drop || (k != 17 && k != 30 && k != 31)) {
+        kept.push_back(k);
+        h.push_back(std::floor(k * 1000.0 / 400.0) / 1000.0);
+      }
+    const std::vector<int> off = vision::droppedFrameOffsets(h, &interval);
+    if (drop) EXPECT_EQ(off, kept);
+    else EXPECT_TRUE(off.empty()) << off.size();
+    EXPECT_NEAR(1.0 / interval, 400.0, 2.0);  // the floor of 1000 k / 400 ms: 401.4 frames/s over 59 intervals
+  }
   // Nothing dropped, including a variable rate within half an interval: no offsets.
   std::vector<double> v{0.0, 0.030, 0.071, 0.100, 0.128, 0.170};
   EXPECT_TRUE(vision::droppedFrameOffsets(v, &interval).empty());

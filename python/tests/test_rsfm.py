@@ -99,6 +99,8 @@ def test_estimate_gives_the_cli_numbers(tracks_file, tmp_path):
     assert np.allclose(tum, r["trajectory"], atol=2e-9)  # the file has 9 decimals
     labels = np.loadtxt(out / "labels.csv", delimiter=",", skiprows=1, dtype=int)
     assert np.array_equal(r["labels"][labels[:, 0]], labels[:, 1])
+    assert np.array_equal(r["last_frame_used"][labels[:, 0]], labels[:, 4])  # last_frame_used
+    assert (labels[:, 4] >= 0).any()
     # Same run from the array of the same rows: the same numbers.
     rows, header = rsfm.read_tracks(str(tracks_file))
     assert header["fps"] is None and header["time_origin"] is None and header["dropped_frames"] == []

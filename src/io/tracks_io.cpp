@@ -22,25 +22,23 @@ namespace {
 constexpr int kDroppedStretchesPerLine = 200;
 }  // namespace
 
+std::string droppedFramesLines(const std::vector<std::array<int, 2>>& stretches) {
+  std::string out;
+  for (std::size_t i = 0; i < stretches.size(); ++i) {
+    if (i % kDroppedStretchesPerLine == 0) out += i == 0 ? "# dropped_frames" : "\n# dropped_frames";
+    const auto [a, b] = stretches[i];
+    out += a == b ? fmt::format(" {}", a) : fmt::format(" {}-{}", a, b);
+  }
+  if (!out.empty()) out += "\n";
+  return out;
+}
+
 void writeTracks(std::ostream& os, const Tracks& t) {
   const int n = t.numFrames();
   const int first = n > 0 ? t.frameNumber(0) : t.first_frame;
   const int last = n > 0 ? t.frameNumber(n - 1) : t.first_frame - 1;
   detail::writeCsvHeader(os, "rsfm-tracks", t.image, first, last - first + 1, t.source);
-  // Frame numbers the tracks skip (a video's dropped frames): as stretches, a bounded number per line.
-  std::string line;
-  int on_line = 0;
-  for (int k = 0; k + 1 < n; ++k) {
-    const int a = t.frameNumber(k) + 1, b = t.frameNumber(k + 1) - 1;
-    if (b < a) continue;
-    line += a == b ? fmt::format(" {}", a) : fmt::format(" {}-{}", a, b);
-    if (++on_line == kDroppedStretchesPerLine) {
-      os << "# dropped_frames" << line << "\n";
-      line.clear();
-      on_line = 0;
-    }
-  }
-  if (on_line > 0) os << "# dropped_frames" << line << "\n";
+  os << droppedFramesLines(t.skippedStretches());  // a video's dropped frames
   os << "frame,track,x,y\n";
   std::string buf;
   for (int k = 0; k < n; ++k)

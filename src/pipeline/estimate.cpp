@@ -267,6 +267,33 @@ std::optional<double> knownReadout(const EstimateOptions& o) {
   return tau;
 }
 
+namespace {
+/// EstimateResult::last_used of `r`, an estimate of `input`. The plane finder's cuts count from
+/// the reference frame (after a still start, the frame after the last still one).
+std::vector<int> lastFramesUsed(const Tracks& input, const EstimateResult& r) {
+  const int frames = input.numFrames();
+  std::vector<char> held(static_cast<std::size_t>(frames), 0);
+  for (const auto& [a, b] : vision::heldStretches(r.still))
+    for (int k = a; k <= b && k < frames; ++k) held[static_cast<std::size_t>(k)] = 1;
+  int last_k = -1;  // the last estimated frame
+  if (!r.online.frames.empty())
+    for (int k = frames - 1; k >= 0 && last_k < 0; --k)
+      if (input.frameNumber(k) <= r.online.frames.back().frame) last_k = k;
+  const std::vector<int>& labels = r.labels();
+  std::vector<int> last(static_cast<std::size_t>(input.idBound()), -1);
+  for (int k = 0; k <= last_k; ++k) {
+    if (held[static_cast<std::size_t>(k)]) continue;
+    for (const TrackPoint& p : input.frames[static_cast<std::size_t>(k)]) {
+      const auto id = static_cast<std::size_t>(p.id);
+      if (id >= labels.size() || labels[id] < 0) continue;
+      const int cut = id < r.planes.cut_after.size() && r.planes.cut_after[id] >= 0 ? r.still.still_frames + r.planes.cut_after[id] : frames;
+      if (k <= cut) last[id] = k;
+    }
+  }
+  return last;
+}
+}  // namespace
+
 EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
                         const std::function<void(const std::string&)>& note,
                         const std::function<void(int, int)>& progress) {
@@ -643,6 +670,7 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
       coverIds(&r.refined.labels, input, from_motion);
     }
   }
+  r.last_used = lastFramesUsed(input, r);
   return r;
 }
 

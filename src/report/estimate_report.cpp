@@ -397,26 +397,34 @@ std::string tumText(const TrackFilterResult& res, const ImageInfo& image) {
 
 /// planes.csv rows of one frame's estimate (`estimate`: online or refined).
 /// `online` (may be null): the run frame `f` is frame index `k` of; a plane it had not yet
-/// estimated there (one that came into view later) gets no row.
+/// estimated there (one that came into view later) gets no row. `refined` (may be null): the
+/// refinement whose final estimate `f` is; what it reports not determined has NA sds (the
+/// focal length: beta_sd and focal_sd_px; a plane: normal_sd_deg and distance_sd), the values
+/// kept for inspection as summary.json's `focal_estimate_px` and normals.
 std::string planeRows(const TrackFrame& f, double scale_px, const char* estimate, const TrackFilterResult* online = nullptr,
-                      int k = 0) {
+                      int k = 0, const RefineResult* refined = nullptr) {
   const double bsd = std::sqrt(std::max(0.0, f.var_beta));
   const double focal = scale_px / f.beta, fsd = scale_px * bsd / (f.beta * f.beta);
+  const bool focal_det = !refined || refined->focal_determined;
+  const std::string bsd_s = focal_det ? num(bsd) : "NA", fsd_s = focal_det ? num(fsd, 3) : "NA";
   // The prediction's process noise of an online frame after the first (NA: the reference frame,
   // the refined row).
   const bool has_q = std::string_view(estimate) == "online" && f.q_omega_sd_deg > 0.0;
   const std::string qw = has_q ? num(f.q_omega_sd_deg, 4) : "NA", qt = has_q ? num(f.q_trans_sd_rel, 4) : "NA";
   const std::string rms = f.still ? std::string("NA") : num(f.rms_px, 4);  // a still frame: no observations
   if (f.N.empty())
-    return fmt::format("{},-1,NA,NA,NA,NA,NA,NA,{},{},{},{},{},{},{},{},{},{}\n", f.frame, num(f.beta), num(bsd),
-                       num(focal, 3), num(fsd, 3), f.used, f.gated, rms, estimate, qw, qt);
+    return fmt::format("{},-1,NA,NA,NA,NA,NA,NA,{},{},{},{},{},{},{},{},{},{}\n", f.frame, num(f.beta), bsd_s,
+                       num(focal, 3), fsd_s, f.used, f.gated, rms, estimate, qw, qt);
   std::string out;
   for (size_t p = 0; p < f.N.size(); ++p) {
     if (online && !online->planeEstimatedAt(static_cast<int>(p), k)) continue;
     const MetricPlane mp = metricPlane(f.N[p], f.beta, covBetaN(f, static_cast<int>(p)));
+    const bool plane_det =
+        !refined || p >= refined->plane_determined.size() || refined->plane_determined[p];
     out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, p, num(mp.n.x()), num(mp.n.y()),
-                       num(mp.n.z()), num(mp.sd_angle_deg, 4), num(mp.d), num(mp.sd_d), num(f.beta), num(bsd),
-                       num(focal, 3), num(fsd, 3), f.used, f.gated, rms, estimate, qw, qt);
+                       num(mp.n.z()), plane_det ? num(mp.sd_angle_deg, 4) : "NA", num(mp.d),
+                       plane_det ? num(mp.sd_d) : "NA", num(f.beta), bsd_s, num(focal, 3), fsd_s, f.used, f.gated, rms,
+                       estimate, qw, qt);
   }
   return out;
 }
@@ -500,7 +508,7 @@ nlohmann::json writeEstimateReport(const EstimateReport& r, const std::filesyste
     fin.used = r.refined->observations;
     fin.gated = r.refined->relabelled;
     fin.rms_px = r.refined->final_rms_px;
-    pc += planeRows(fin, res.scale_px, "refined");
+    pc += planeRows(fin, res.scale_px, "refined", nullptr, 0, &*r.refined);
   }
   const auto planes_tmp = files->write(dir / "planes.csv", pc);
   // angles.csv: the angles between planes, the filter's frame by frame, then the refinement's.

@@ -30,6 +30,13 @@ std::vector<TrackSpan> trackSpans(const Tracks& t) {
   return s;
 }
 
+std::vector<std::array<int, 2>> Tracks::skippedStretches() const {
+  std::vector<std::array<int, 2>> out;
+  for (int k = 0; k + 1 < numFrames(); ++k)
+    if (frameNumber(k + 1) > frameNumber(k) + 1) out.push_back({frameNumber(k) + 1, frameNumber(k + 1) - 1});
+  return out;
+}
+
 std::vector<std::array<int, 2>> consecutiveStretches(const std::vector<int>& sorted) {
   std::vector<std::array<int, 2>> out;
   for (std::size_t i = 0; i < sorted.size();) {

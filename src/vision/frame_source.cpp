@@ -368,13 +368,29 @@ std::vector<int> droppedFrameOffsets(const std::vector<double>& times_s, double*
     gaps.push_back(g);
   }
   std::vector<double> sorted = gaps;
-  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-  const double m = sorted[sorted.size() / 2];
+  std::sort(sorted.begin(), sorted.end());
+  const double m0 = sorted[sorted.size() / 2];  // the median gap
+  // The timestamps' resolution q: the smallest step between distinct gap values (1 ms for
+  // images named in milliseconds or a container counting them), at most half the median gap;
+  // ~0 for timestamps that jitter continuously.
+  double q = 0;
+  for (std::size_t i = 1; i < sorted.size(); ++i)
+    if (const double d = sorted[i] - sorted[i - 1]; d > 1e-9 * m0) q = q == 0 ? d : std::min(q, d);
+  q = std::min(q, 0.5 * m0) * (1 + 1e-9);
+  // The interval: the mean of the gaps near the median (the median alone carries the rounding:
+  // 400 frames/s in milliseconds has gaps of 2 and 3 ms, and a median of 2 ms made every 3 ms gap
+  // a dropped frame).
+  double sum = 0;
+  int near = 0;
+  for (double g : gaps)
+    if (std::abs(g - m0) <= std::max(q, 0.25 * m0)) sum += g, ++near;
+  const double m = sum / near;  // near >= 1: the median itself
   if (interval_s) *interval_s = m;
   std::vector<int> offsets{0};
   bool dropped = false;
   for (double g : gaps) {
-    const long steps = std::max(1L, std::lround(g / m));
+    // A gap within the resolution of the interval is one step; the others round.
+    const long steps = std::abs(g - m) <= q ? 1L : std::max(1L, std::lround(g / m));
     dropped = dropped || steps > 1;
     if (offsets.back() > std::numeric_limits<int>::max() - steps) return {};
     offsets.push_back(offsets.back() + static_cast<int>(steps));

@@ -19,6 +19,9 @@ namespace rsfm::io {
 /// Writes `t` in the format above (positions to 1e-4 px).
 void writeTracks(std::ostream& os, const Tracks& t);
 std::string tracksToString(const Tracks& t);
+/// The header's '# dropped_frames' lines for `stretches` ([first, last] frame numbers; "N" or
+/// "A-B"), a bounded number per line (the reader's lines are at most 8192 bytes); empty for none.
+std::string droppedFramesLines(const std::vector<std::array<int, 2>>& stretches);
 
 /// Reads and validates a tracks file. Throws InputError "FILE:LINE: problem" on: a missing or
 /// unreadable file, a missing/unknown version, missing or invalid header keys, a wrong column

@@ -117,6 +117,12 @@ struct EstimateResult {
     double filter = 0.0;         ///< the recursive filter, every pass
     double refinement = 0.0;     ///< the bundle adjustment and its uncertainty (0: not run)
   } seconds;
+  /// Per track id of the input: the index (into the input's frames) of the last frame whose
+  /// observation of it the estimate used, labels.csv's `last_frame_used`: up to where it left its
+  /// plane (planes.cut_after), up to the last estimated frame (an estimate that ended early), and
+  /// not in a held still stretch (left out of every stage). -1: on no plane (labels() < 0), or
+  /// never used.
+  std::vector<int> last_used;
   /// The main result: the refinement's when it succeeded, else the filter's.
   const TrackFilterResult& main() const { return refined.ok ? refined.state : online; }
   /// Labels after the refinement's relabelling (the plane finder's when it did not run).

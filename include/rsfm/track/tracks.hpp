@@ -83,6 +83,9 @@ struct Tracks {
   int numFrames() const { return static_cast<int>(frames.size()); }
   /// The frame number of frames[k].
   int frameNumber(int k) const { return frame_numbers.empty() ? first_frame + k : frame_numbers[static_cast<size_t>(k)]; }
+  /// The frame numbers between frames[k] and frames[k + 1] that the tracks skip (a video's
+  /// dropped frames, held still frames), as [first, last] stretches in increasing order.
+  std::vector<std::array<int, 2>> skippedStretches() const;
   /// 1 + the largest track id (0 when empty).
   int idBound() const;
   /// Position of track `id` in frame index k (0-based within `frames`), or nullptr.

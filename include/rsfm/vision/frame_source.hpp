@@ -133,8 +133,11 @@ struct SourceInfo {
 };
 
 /// The frames a video dropped, from its frames' timestamps (seconds, in order): each frame's
-/// offset from the first in frame intervals (the median interval between consecutive
-/// timestamps), each at least one more than the one before (round(gap / interval)). Empty when
+/// offset from the first in frame intervals (the mean of the gaps between consecutive timestamps
+/// that lie within the timestamps' resolution, or a quarter of the median gap, of the median
+/// gap), each at least one more than the one before: one for a gap within the resolution of the
+/// interval, else round(gap / interval). The resolution is the smallest step between distinct
+/// gaps (1 ms for timestamps in milliseconds), at most half the median gap. Empty when
 /// no frame is more than half an interval late (nothing dropped), or when a timestamp is missing,
 /// not finite or not after the one before (nothing to go by). `interval_s` (may be null): the
 /// interval, the timestamps' span over the offsets' (0 when there is none).
