@@ -3,6 +3,7 @@
 // point; a known camera gives the undistorted run's figures; its focal-length interval holds the
 // truth at the stated rate; pure rotation and pure translation are reported not determined.
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -10,6 +11,7 @@
 #include <random>
 
 #include "rsfm/geometry.hpp"
+#include "rsfm/models/plane_model.hpp"
 #include "rsfm/models/radial_camera.hpp"
 #include "rsfm/residual_correlation.hpp"
 #include "rsfm/units.hpp"
@@ -749,6 +751,39 @@ TEST(Refine, APlaneLeftWithThreeTracksIsNotDetermined) {
   std::printf("two tracks left on plane %d: %s\n", j, f2.why.c_str());
   EXPECT_FALSE(f2.plane_determined[j]);
   EXPECT_NE(f2.why.find(fmt::format("plane {}: 2 of its tracks left (too few to place it)", j)), std::string::npos) << f2.why;
+}
+
+// PlaneModel::horizonDistance, the refinement's test for a reference at its plane's horizon
+// (pipeline/refine.cpp; docs/estimate.md section 4, "Planes seen edge-on from the reference
+// frame"): the distance to the line where the reference rays run parallel to the plane. At the
+// foot of the perpendicular the ray is singular; along the normal to the line the distance grows
+// linearly and the point's depth as 1 / the distance; a plane parallel to the image has none.
+TEST(Refine, TheHorizonDistanceIsTheDistanceToTheLineWhereRaysRunParallelToThePlane) {
+  const double beta = 0.8;
+  const Eigen::Vector3d N(0.9, -0.4, 0.35);
+  const Eigen::Vector2d uv(0.21, 0.13);
+  const double d = PlaneModel::horizonDistance(N, beta, uv);
+  ASSERT_GT(d, 0.05);
+  // The foot of the perpendicular on the line beta N_xy . uv + N_z = 0.
+  const Eigen::Vector2d dir = N.head<2>().normalized();
+  const double side = beta * N.head<2>().dot(uv) + N.z() > 0 ? 1.0 : -1.0;
+  const Eigen::Vector2d foot = uv - side * d * dir;
+  EXPECT_NEAR(beta * N.head<2>().dot(foot) + N.z(), 0.0, 1e-12);
+  EXPECT_EQ(PlaneModel::checkRay(N, beta, foot), MeasureStatus::HorizonSingular);
+  // Moving along the line leaves the distance; across it, it changes linearly.
+  const Eigen::Vector2d along(-dir.y(), dir.x());
+  EXPECT_NEAR(PlaneModel::horizonDistance(N, beta, uv + 0.3 * along), d, 1e-12);
+  EXPECT_NEAR(PlaneModel::horizonDistance(N, beta, foot + side * 0.25 * d * dir), 0.25 * d, 1e-12);
+  // Depth from the centre of projection along the ray grows as 1 / the distance.
+  auto depth = [&](double e) {
+    Eigen::Vector3d p;
+    const Eigen::Vector2d at = foot + side * e * dir;
+    EXPECT_EQ(PlaneModel::point(N, beta, at, &p, nullptr, nullptr), MeasureStatus::Ok);
+    return 1.0 + beta * p.z();
+  };
+  EXPECT_NEAR(depth(1e-2) / depth(2e-2), 2.0, 0.05);
+  EXPECT_NEAR(depth(2e-2) / depth(4e-2), 2.0, 0.1);  // (below a grazing sine of 1e-3 the ray is singular)
+  EXPECT_TRUE(std::isinf(PlaneModel::horizonDistance(Eigen::Vector3d(0, 0, 0.5), beta, uv)));
 }
 
 }  // namespace

@@ -7,6 +7,7 @@
 #include <fmt/ranges.h>
 
 #include <algorithm>
+#include <numeric>
 #include <cmath>
 #include <optional>
 
@@ -34,7 +35,18 @@ struct Problem {
   /// Per plane, later tracks left out because the start cannot carry them to the reference frame
   /// (behind the reference camera or at the plane's horizon).
   std::vector<int> transfer_failed;
+  /// Per plane, tracks left out because their reference position lies at the plane's horizon
+  /// line in the reference image (RefineResult::plane_horizon_tracks).
+  std::vector<int> horizon;
 };
+
+/// A reference position closer than this many measurement sds (TrackFilterOptions::sigma_px) to
+/// its plane's horizon line in the reference image is on a side of it the data do not decide
+/// (docs/estimate.md section 4, "Planes seen edge-on from the reference frame").
+constexpr double kHorizonSigmas = 3.0;
+/// A plane with half its tracks or more at its horizon, or left with fewer tracks than this once
+/// those are out, loses the rest too: five points determine a plane (the seed's section 3.1).
+constexpr int kMinPlaneTracksAtHorizon = 5;
 
 double robustSd(std::vector<double> v) {
   if (v.empty()) return 0.0;
@@ -87,11 +99,16 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   r.camera_free = {ro.estimate_principal_point, ro.estimate_principal_point, ro.estimate_distortion, ro.estimate_distortion};
   const bool known_focal = fo.focal_px > 0;
 
+  // Planes seen edge-on from the reference frame by some build: left out of every later one (their
+  // tracks, carried back through a state whose plane has moved off the camera's centre, came back
+  // and the last solve crawled along that plane to its iteration limit).
+  std::vector<char> edge_on(m, 0);
   // Builds the problem over the tracks labelled >= 0 in `lab`, started at `from` (the filter's
   // state when null) for the points it knows.
   auto build = [&](const std::vector<int>& lab, const PlaneBatchState* from, const std::vector<int>* from_track_of_point) {
     Problem p;
     p.transfer_failed.assign(m, 0);
+    p.horizon.assign(m, 0);
     p.data.frames.resize(F);
     p.data.num_planes = m;
     p.data.gauge_plane = 0;
@@ -113,6 +130,18 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       for (std::size_t i = 0; i < from_track_of_point->size(); ++i) point_of_track_from[(*from_track_of_point)[i]] = static_cast<int>(i);
     }
     std::vector<int> point_of_track(n_ids, -1);
+    // Each track's reference, and whether it lies at its plane's horizon line in the reference
+    // image (PlaneModel::horizonDistance, x s: px). A plane seen edge-on from the reference camera
+    // (one that nearly contains its centre) has every point there: a point's depth along its
+    // reference ray then turns on a fraction of a pixel, and the solver's steps carry it behind
+    // the camera.
+    struct Candidate {
+      int id;
+      Eigen::Vector2d ref;
+      bool at_horizon;
+    };
+    std::vector<Candidate> cands;
+    std::vector<int> at(m, 0), off(m, 0);  // per plane: tracks at its horizon, and the rest
     for (int id = 0; id < n_ids; ++id) {
       if (lab[id] < 0 || lab[id] >= m || spans[id].length() < std::max(2, fo.min_track_frames)) continue;
       Eigen::Vector2d ref;
@@ -125,17 +154,38 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
         if (k1 == 0) {
           ref = uv;
         } else {
+          // Through the state the problem starts from (a track the previous problem left out:
+          // at a plane's horizon there), else the filter's.
           const TrackFrame& f = online.frames[k1];
-          if (PlaneModel::transferToReference(last.N[lab[id]], f.beta, f.R, f.t, uv, &ref) != MeasureStatus::Ok) {
+          const MeasureStatus st =
+              from ? PlaneModel::transferToReference(
+                         from->N[lab[id]], from->beta, from->R[k1],
+                         Eigen::Vector3d(from->t[k1].x(), from->t[k1].y(), from->t[k1].z() / from->beta), uv, &ref)
+                   : PlaneModel::transferToReference(last.N[lab[id]], f.beta, f.R, f.t, uv, &ref);
+          if (st != MeasureStatus::Ok) {
             ++p.transfer_failed[lab[id]];
             continue;
           }
         }
       }
-      point_of_track[id] = static_cast<int>(p.data.point_ids.size());
-      p.data.point_ids.push_back(id);
-      p.data.labels.push_back(lab[id]);
-      p.start.ref.push_back(ref);
+      const bool at_horizon =
+          s * PlaneModel::horizonDistance(p.start.N[lab[id]], p.start.beta, ref) < kHorizonSigmas * fo.sigma_px;
+      cands.push_back({id, ref, at_horizon});
+      ++(at_horizon ? at : off)[lab[id]];
+    }
+    for (int j = 0; j < m; ++j)
+      if (at[j] > 0 && (at[j] >= off[j] || off[j] < kMinPlaneTracksAtHorizon)) edge_on[j] = 1;
+    for (const Candidate& c : cands) {
+      const int j = lab[c.id];
+      // A plane with half its tracks or more at its horizon is seen edge-on: the rest are near it.
+      if (c.at_horizon || edge_on[j]) {
+        ++p.horizon[j];
+        continue;
+      }
+      point_of_track[c.id] = static_cast<int>(p.data.point_ids.size());
+      p.data.point_ids.push_back(c.id);
+      p.data.labels.push_back(j);
+      p.start.ref.push_back(c.ref);
     }
     for (int k = 0; k < F; ++k)
       for (const TrackPoint& tp : tracks.frames[k]) {
@@ -239,6 +289,20 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     return r;
   }
   r.iterations = res.iterations;
+  // A plane that solve turned edge-on to the reference camera (its reference positions at its
+  // horizon line there, where their depth is not determined: the long orbit's box face that
+  // nearly contains the reference camera's centre): its tracks are left out (build) and the
+  // problem solved again, before the later stages crawl along it.
+  {
+    Problem p2 = build(selected, &res.state, &p.data.point_ids);
+    PlaneBatchResult res2;
+    if (std::accumulate(p2.horizon.begin(), p2.horizon.end(), 0) > std::accumulate(p.horizon.begin(), p.horizon.end(), 0) &&
+        static_cast<int>(p2.data.point_ids.size()) >= 5 && solve(p2, sigma0, &res2)) {
+      p = std::move(p2);
+      res = std::move(res2);
+      r.iterations += res.iterations;
+    }
+  }
   std::vector<std::string> why;
   const double fmax = std::max(tracks.image.width, tracks.image.height);
   r.camera_free = wanted;
@@ -754,6 +818,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     const double v = std::pow(r.plane_profile_spread_deg[j] / kRadToDeg / 1.96, 2);
     cov_N[j] += 0.5 * v * N.squaredNorm() * (Eigen::Matrix3d::Identity() - n * n.transpose());
   }
+  r.plane_horizon_tracks = p.horizon;
   for (int j = 0; j < m; ++j) {
     const double sd = directionRmsAngle(st.N[j], cov_N[j]) * kRadToDeg;
     // A plane that lost most of its tracks as outliers was not one surface (two faces one
@@ -769,6 +834,11 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     if (mixed)
       why.push_back(fmt::format("plane {}: {} of its {} tracks were off it (not one surface)", j, r.plane_relabelled[j],
                                 r.plane_tracks[j]));
+    else if (!det && p.horizon[j] > 0 && left < kMinPlaneTracksAtHorizon)
+      why.push_back(fmt::format("plane {}: seen edge-on from the reference frame (its tracks' reference positions within "
+                                "{:.1f} px of its horizon line there, where their depth is not determined): its {} tracks left "
+                                "out of the refinement",
+                                j, kHorizonSigmas * fo.sigma_px, p.horizon[j]));
     else if (single && r.translation_significant && rotates && b.normal_estimable[j])
       why.push_back(fmt::format("plane {}: one of its tracks alone decides its normal (no other track tests it)", j));
     else if (!det && r.translation_significant && rotates)

@@ -335,6 +335,7 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                          {"relabelled_outliers", rf.relabelled},
                          {"plane_tracks", rf.plane_tracks},
                          {"plane_relabelled", rf.plane_relabelled},
+                         {"plane_horizon_tracks", rf.plane_horizon_tracks},
                          {"null_space_dim", rf.null_dim},
                          {"rotation_likelihood_ratio", rf.rotation_lr},
                          {"translation_likelihood_ratio", rf.translation_lr},

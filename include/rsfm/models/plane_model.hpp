@@ -10,6 +10,9 @@
 // reported as PlaneThroughOrigin; a ray within kMinGrazingSine of parallel to the plane as
 // HorizonSingular.
 #include <Eigen/Core>
+
+#include <cmath>
+#include <limits>
 #include <vector>
 
 #include "rsfm/ekf.hpp"
@@ -30,6 +33,19 @@ class PlaneModel {
   /// and N . d is exactly 1/eta. Such a point lies ~1000 plane-distances away and its
   /// Jacobian (~eta^2) would let one observation collapse P where linearization fails.
   static constexpr double kMinGrazingSine = 1e-3;
+
+  /// Distance (normalized units) of the reference position `uv` from the plane's horizon line in
+  /// the reference image, {uv : beta (N_X u + N_Y v) + N_Z = 0}, where rays from the centre of
+  /// projection run parallel to the plane N . X = 1 (the denominator 1/eta of point()):
+  /// |beta (N_X u + N_Y v) + N_Z| / (beta |(N_X, N_Y)|); +inf for a plane parallel to the image
+  /// plane (no horizon in the image). Near it a point's depth along its ray grows as 1 / the
+  /// distance: a plane seen edge-on from the reference camera (nearly containing its centre) has
+  /// every point there (pipeline/refine.cpp leaves such references out).
+  static double horizonDistance(const Eigen::Vector3d& N, double beta, const Eigen::Vector2d& uv) {
+    const double nxy = N.head<2>().norm();
+    if (!(beta * nxy > 0)) return std::numeric_limits<double>::infinity();
+    return std::abs(beta * N.head<2>().dot(uv) + N.z()) / (beta * nxy);
+  }
 
   PlaneModel() = default;
   /// `ref_uv`: first-frame normalized positions; `labels`: plane of each point (0..m-1).

@@ -150,6 +150,13 @@ struct RefineResult {
   /// Per plane: its tracks in the refinement and how many of them were relabelled outliers (more
   /// than half: the plane is reported not determined, its tracks were not one surface).
   std::vector<int> plane_tracks, plane_relabelled;
+  /// Per plane: tracks left out of the refinement because their reference position lies within 3
+  /// measurement sds of the plane's horizon line in the reference image (a plane seen edge-on
+  /// from the reference camera, one that nearly contains its centre: the depth along such a
+  /// reference ray turns on a fraction of a pixel), and, when that leaves the plane fewer than 5,
+  /// the rest of its tracks. docs/estimate.md section 4, "Planes seen edge-on from the reference
+  /// frame".
+  std::vector<int> plane_horizon_tracks;
   int tracks = 0, observations = 0;
   int null_dim = 0;           ///< of the information matrix, weak directions included (PlaneBatchBound::null_dim)
   std::vector<int> undetermined_frames;  ///< frames whose pose the observations do not determine
