@@ -446,6 +446,18 @@ void quietGlog() {
 }
 }  // namespace
 
+bool stalledAfterInvalidSteps(const std::vector<SolveStep>& steps, double function_tolerance) {
+  bool invalid_tail = false;
+  for (auto it = steps.rbegin(); it != steps.rend(); ++it) {
+    if (it->successful) {
+      const double before = it->cost + it->cost_change;
+      return invalid_tail && before > 0 && it->cost_change / before > function_tolerance;
+    }
+    if (!(it->cost < 1e300)) invalid_tail = true;  // Ceres records an unevaluable step's cost as the largest double
+  }
+  return false;  // no successful step: nothing was falling
+}
+
 PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchState& start,
                                  const PlaneBatchOptions& options) {
   quietGlog();
@@ -635,6 +647,12 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   res.message = summary.BriefReport();
   res.converged = summary.IsSolutionUsable() && std::isfinite(summary.final_cost);
   res.at_iteration_limit = res.converged && summary.termination_type == ceres::NO_CONVERGENCE;
+  if (res.converged && summary.termination_type == ceres::CONVERGENCE) {
+    std::vector<SolveStep> steps;
+    for (const auto& it : summary.iterations)
+      if (it.iteration > 0) steps.push_back({it.step_is_successful, it.cost, it.cost_change});
+    res.stalled = stalledAfterInvalidSteps(steps, options.function_tolerance);
+  }
 
   // Result state: fold each frame's omega into its base rotation.
   res.state.R = start.R;

@@ -570,6 +570,10 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     why.push_back(fmt::format("the last solve stopped at its iteration limit ({}) with the cost still falling: a flat valley, "
                               "its figures are where it stopped, not an optimum",
                               ro.max_iterations));
+  r.stalled = res.stalled;
+  if (r.stalled)
+    why.push_back("the last solve stopped where its steps could not be evaluated (a point carried behind a camera or past its "
+                  "plane's horizon) with the cost still falling: its figures are where it stopped, not an optimum");
   if (!b.ok) {
     r.message = "the refinement converged but its uncertainty could not be computed: " + b.message;
     return r;

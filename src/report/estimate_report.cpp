@@ -344,6 +344,7 @@ nlohmann::json estimateSummary(const EstimateReport& r) {
                          {"translation_significant", rf.translation_significant},
                          {"undetermined_frames", undetermined},
                          {"at_iteration_limit", rf.at_iteration_limit},
+                         {"stalled", rf.stalled},
                          {"iterations", rf.iterations},
                          {"initial_rms_px", rf.initial_rms_px},
                          {"final_rms_px", rf.final_rms_px},

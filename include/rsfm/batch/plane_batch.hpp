@@ -119,12 +119,29 @@ struct PlaneBatchState {
   double readout = 0.0;
 };
 
+/// One iteration of a solve, as PlaneBatchResult::stalled reads it (from Ceres's summary).
+struct SolveStep {
+  bool successful = false;
+  double cost = 0.0;         ///< after a successful step; a step that could not be evaluated: not finite or ~1.8e308
+  double cost_change = 0.0;  ///< cost before - cost after (successful steps)
+};
+/// True when the steps after the last successful one include one that could not be evaluated
+/// and that last successful step still decreased the cost by more than `function_tolerance`
+/// (relative): a solve that stopped on its parameter tolerance only because such steps shrank
+/// its trust region (PlaneBatchResult::stalled). `steps` excludes the start (Ceres's iteration 0).
+bool stalledAfterInvalidSteps(const std::vector<SolveStep>& steps, double function_tolerance);
+
 struct PlaneBatchResult {
   PlaneBatchState state;
   bool converged = false;       ///< Ceres reported a usable solution
   /// Usable, but the solver stopped at max_iterations with the cost still falling (Ceres's
   /// NO_CONVERGENCE): the state is where it stopped, not an optimum.
   bool at_iteration_limit = false;
+  /// Usable by Ceres's account (it stopped on its parameter tolerance), but only because the trust
+  /// region shrank to nothing under steps it could not evaluate (a point carried behind a camera
+  /// or past its plane's horizon), the cost still falling by more than the function tolerance at
+  /// its last step: the state is where it stopped, not an optimum.
+  bool stalled = false;
   std::string message;          ///< Ceres's summary line or the failure
   int iterations = 0;
   double initial_cost = 0, final_cost = 0;  ///< 0.5 sum of squared whitened residuals

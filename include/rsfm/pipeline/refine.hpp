@@ -186,6 +186,10 @@ struct RefineResult {
   /// flat valley: the data hardly constrain some direction). Said in `why`; the figures are
   /// where it stopped.
   bool at_iteration_limit = false;
+  /// The final solve stopped where its steps could not be evaluated, the cost still falling
+  /// (PlaneBatchResult::stalled; Ceres counts it converged). Said in `why`; the figures are where
+  /// it stopped.
+  bool stalled = false;
   int iterations = 0;
   double initial_rms_px = 0.0, final_rms_px = 0.0;
   double seconds = 0.0;
