@@ -838,7 +838,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     if (mixed)
       why.push_back(fmt::format("plane {}: {} of its {} tracks were off it (not one surface)", j, r.plane_relabelled[j],
                                 r.plane_tracks[j]));
-    else if (!det && p.horizon[j] > 0 && left < kMinPlaneTracksAtHorizon)
+    else if (!det && p.horizon[j] > 0 && std::count(p.data.labels.begin(), p.data.labels.end(), j) == 0)
       why.push_back(fmt::format("plane {}: seen edge-on from the reference frame (its tracks' reference positions within "
                                 "{:.1f} px of its horizon line there, where their depth is not determined): its {} tracks left "
                                 "out of the refinement",
