@@ -273,8 +273,8 @@ namespace {
 std::vector<int> lastFramesUsed(const Tracks& input, const EstimateResult& r) {
   const int frames = input.numFrames();
   std::vector<char> held(static_cast<std::size_t>(frames), 0);
-  for (const auto& [a, b] : vision::heldStretches(r.still))
-    for (int k = a; k <= b && k < frames; ++k) held[static_cast<std::size_t>(k)] = 1;
+  for (int k : r.still.held)
+    if (k < frames) held[static_cast<std::size_t>(k)] = 1;
   int last_k = -1;  // the last estimated frame
   if (!r.online.frames.empty())
     for (int k = frames - 1; k >= 0 && last_k < 0; --k)
