@@ -138,6 +138,54 @@ TEST(PlaneBatch, ReachesTheTruthOnExactData) {
   EXPECT_LT(r.final_cost, 1e-12);
 }
 
+// PlaneBatchOptions::stop_when sees every successful step's beta, planes and references and
+// stops the solve where it returns true, with that state; one that never fires changes nothing
+// (the refinement's stage 1 stops so when a plane turns edge-on to the reference camera).
+TEST(PlaneBatch, StopWhenStopsWhereItHoldsAndOtherwiseChangesNothing) {
+  Sequence s = makeSequence(0.0, 3);
+  PlaneBatchState start = truthState(s);
+  start.beta = 0.8;
+  start.N[0] += Eigen::Vector3d(0.2, -0.1, 0.0);
+  for (size_t k = 1; k < start.R.size(); ++k) start.t[k] += Eigen::Vector3d(0.01, -0.02, 0.005);
+  const PlaneBatchResult full = solvePlaneBatch(s.data, start);
+  ASSERT_TRUE(full.converged) << full.message;
+  ASSERT_GT(full.iterations, 3);
+
+  PlaneBatchOptions o;
+  int calls = 0;
+  double seen_beta = 0;
+  Eigen::Vector3d seen_N = Eigen::Vector3d::Zero();
+  Eigen::Vector2d seen_ref = Eigen::Vector2d::Zero();
+  o.stop_when = [&](double beta, const Eigen::Ref<const Eigen::Matrix3Xd>& N, const Eigen::Ref<const Eigen::Matrix2Xd>& ref) {
+    ++calls;
+    EXPECT_EQ(N.cols(), 1);
+    EXPECT_EQ(ref.cols(), static_cast<Eigen::Index>(s.scene.points.size()));
+    seen_beta = beta;
+    seen_N = N.col(0);
+    seen_ref = ref.col(7);
+    return std::abs(beta - 1.0) < 0.05;  // the start is 0.8, the truth 1
+  };
+  const PlaneBatchResult stopped = solvePlaneBatch(s.data, start, o);
+  ASSERT_TRUE(stopped.converged) << stopped.message;
+  EXPECT_TRUE(stopped.stopped_early);
+  EXPECT_FALSE(full.stopped_early);
+  EXPECT_LT(stopped.iterations, full.iterations);
+  EXPECT_GE(calls, 1);
+  EXPECT_LT(std::abs(stopped.state.beta - 1.0), 0.05);
+  EXPECT_GT(std::abs(stopped.state.beta - 1.0), 1e-6);  // stopped, not converged
+  EXPECT_EQ(stopped.state.beta, seen_beta);  // the state is the one the test saw
+  EXPECT_EQ(stopped.state.N[0], seen_N);
+  EXPECT_EQ(stopped.state.ref[7], seen_ref);
+
+  o.stop_when = [&](double, const Eigen::Ref<const Eigen::Matrix3Xd>&, const Eigen::Ref<const Eigen::Matrix2Xd>&) { return false; };
+  const PlaneBatchResult never = solvePlaneBatch(s.data, start, o);
+  EXPECT_FALSE(never.stopped_early);
+  EXPECT_EQ(never.iterations, full.iterations);
+  EXPECT_EQ(never.final_cost, full.final_cost);
+  EXPECT_EQ(never.state.beta, full.state.beta);
+  EXPECT_EQ(never.state.N[0], full.state.N[0]);
+}
+
 /// The filter's per-frame estimates as a batch start.
 PlaneBatchState filterStart(const Sequence& s) {
   const int Np = static_cast<int>(s.scene.points.size());

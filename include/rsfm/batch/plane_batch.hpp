@@ -20,6 +20,7 @@
 // bound for beta and the planes under Gaussian noise of standard deviation sigma.
 #include <Eigen/Core>
 #include <array>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -71,6 +72,14 @@ struct PlaneBatchOptions {
   double function_tolerance = 1e-12;
   double parameter_tolerance = 1e-12;
   bool compute_covariance = true;   ///< covariance of beta and the planes at the optimum
+  /// Checked after every successful iteration on that iteration's beta, planes (3 x m, one column
+  /// per plane) and references (2 x P): true stops the solve there, the state where it stopped
+  /// (PlaneBatchResult::stopped_early). Empty: never. The refinement stops its first solve when
+  /// a plane turns edge-on to the reference camera, instead of crawling after it to the
+  /// iteration limit (pipeline/refine.cpp; docs/estimate.md section 4).
+  using StopWhen =
+      std::function<bool(double beta, const Eigen::Ref<const Eigen::Matrix3Xd>& N, const Eigen::Ref<const Eigen::Matrix2Xd>& ref)>;
+  StopWhen stop_when;
 };
 
 /// Observations and model structure. frames[0] are the reference-frame observations.
@@ -142,6 +151,8 @@ struct PlaneBatchResult {
   /// or past its plane's horizon), the cost still falling by more than the function tolerance at
   /// its last step: the state is where it stopped, not an optimum.
   bool stalled = false;
+  /// Usable, stopped by PlaneBatchOptions::stop_when: the state is where it stopped.
+  bool stopped_early = false;
   std::string message;          ///< Ceres's summary line or the failure
   int iterations = 0;
   double initial_cost = 0, final_cost = 0;  ///< 0.5 sum of squared whitened residuals
