@@ -691,6 +691,35 @@ EstimateResult filterOnly(const Synthetic& s) {
   return estimate(s.tracks, o);
 }
 
+// A long refinement says what it is solving (RefineOptions::progress_seconds; the 1200-frame
+// orbit's took 15-30 s in silence): every solve's iterations, the profile's too; the result does
+// not depend on whether anyone listens.
+TEST(Refine, SaysWhatItSolvesAsItGoes) {
+  const Synthetic s = makeTracks(31, 1.0, Eigen::Vector2d::Zero(), 0.0, 0.0, 20, 0.1);  // a slow turn: the profile runs
+  const EstimateResult r = filterOnly(s);
+  ASSERT_TRUE(r.online.ok());
+  RefineOptions ro;
+  ro.progress_seconds = 0;
+  std::vector<std::string> lines;
+  const RefineResult heard = refine(s.tracks, r.planes.labels, r.online, r.filter_used, ro,
+                                    [&](const std::string& m) { lines.push_back(m); });
+  const RefineResult silent = refine(s.tracks, r.planes.labels, r.online, r.filter_used, ro);
+  ASSERT_TRUE(heard.ok) << heard.message;
+  ASSERT_FALSE(lines.empty());
+  EXPECT_NE(lines.front().find("the camera held: iteration"), std::string::npos) << lines.front();
+  bool profile = false;
+  for (const std::string& l : lines) {
+    EXPECT_EQ(l.rfind("refine: ", 0), 0u) << l;
+    EXPECT_NE(l.find(" s so far; "), std::string::npos) << l;
+    profile = profile || l.find("the focal length's profile at ") != std::string::npos;
+  }
+  EXPECT_TRUE(profile) << "the profile's solves are reported too";
+  EXPECT_GE(static_cast<int>(lines.size()), heard.iterations);  // every iteration, iteration 0 included
+  EXPECT_EQ(heard.iterations, silent.iterations);
+  EXPECT_EQ(heard.state.frames.back().beta, silent.state.frames.back().beta);
+  EXPECT_EQ(heard.why, silent.why);
+}
+
 TEST(Refine, AFailedRefinementKeepsTheOnlineEstimateAndSaysWhy) {
   const Synthetic s = makeTracks(11, 0.3, Eigen::Vector2d::Zero(), 0.0, 0.0, 30);
   EstimateResult r = filterOnly(s);

@@ -639,29 +639,33 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   so.parameter_tolerance = options.parameter_tolerance;
   so.num_threads = 1;  // callers parallelize over trials
   so.logging_type = ceres::SILENT;
-  // The caller's test after every successful step: Ceres then writes each step's values back into
-  // `store` (update_state_every_iteration), where N and the references lie contiguously.
-  struct StopWhen final : ceres::IterationCallback {
+  // The caller's progress after every iteration, and its test after every successful step: Ceres
+  // then writes each step's values back into `store` (update_state_every_iteration), where N and
+  // the references lie contiguously.
+  struct Watch final : ceres::IterationCallback {
     const PlaneBatchOptions::StopWhen* test = nullptr;
+    const std::function<void(int, double)>* on_iteration = nullptr;
     const std::vector<double>* store = nullptr;
     int m = 0, P = 0;
     bool fired = false;
     ceres::CallbackReturnType operator()(const ceres::IterationSummary& it) override {
-      if (it.iteration == 0 || !it.step_is_successful) return ceres::SOLVER_CONTINUE;
+      if (on_iteration) (*on_iteration)(it.iteration, it.cost);
+      if (!test || it.iteration == 0 || !it.step_is_successful) return ceres::SOLVER_CONTINUE;
       const double* base = store->data();
       fired = (*test)(base[0], Eigen::Map<const Eigen::Matrix3Xd>(base + 1, 3, m),
                       Eigen::Map<const Eigen::Matrix2Xd>(base + 1 + 3 * m + 4, 2, P));
       return fired ? ceres::SOLVER_TERMINATE_SUCCESSFULLY : ceres::SOLVER_CONTINUE;
     }
-  } stop_when;
+  } watch;
   if (options.stop_when) {
-    stop_when.test = &options.stop_when;
-    stop_when.store = &store;
-    stop_when.m = m;
-    stop_when.P = P;
+    watch.test = &options.stop_when;
+    watch.store = &store;
+    watch.m = m;
+    watch.P = P;
     so.update_state_every_iteration = true;
-    so.callbacks.push_back(&stop_when);
   }
+  if (options.on_iteration) watch.on_iteration = &options.on_iteration;
+  if (options.stop_when || options.on_iteration) so.callbacks.push_back(&watch);
   ceres::Solver::Summary summary;
   ceres::Solve(so, &problem, &summary);
   res.iterations = static_cast<int>(summary.iterations.size());
@@ -670,7 +674,7 @@ PlaneBatchResult solvePlaneBatch(const PlaneBatchData& data, const PlaneBatchSta
   res.message = summary.BriefReport();
   res.converged = summary.IsSolutionUsable() && std::isfinite(summary.final_cost);
   res.at_iteration_limit = res.converged && summary.termination_type == ceres::NO_CONVERGENCE;
-  res.stopped_early = res.converged && stop_when.fired && summary.termination_type == ceres::USER_SUCCESS;
+  res.stopped_early = res.converged && watch.fired && summary.termination_type == ceres::USER_SUCCESS;
   if (res.converged && summary.termination_type == ceres::CONVERGENCE) {
     std::vector<SolveStep> steps;
     for (const auto& it : summary.iterations)

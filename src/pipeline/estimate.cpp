@@ -633,7 +633,7 @@ EstimateResult estimate(const Tracks& given, const EstimateOptions& o,
         planes_start.stopped = "it ended before the point filter (" + planes_start.ended + ")";
     }
     if (from->ok()) {
-      r.refined = refine(*rt, pf.labels, *from, fopt, known.refine);
+      r.refined = refine(*rt, pf.labels, *from, fopt, known.refine, note);
     } else {
       r.refined = RefineResult{};
       r.refined.message = "the planes model's filter, the refinement's start, stopped: " + from->stopped;

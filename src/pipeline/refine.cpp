@@ -82,7 +82,7 @@ std::vector<std::vector<double>> residualsPx(const Problem& p, const PlaneBatchS
 }  // namespace
 
 RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterResult& online,
-                    const TrackFilterOptions& fo, const RefineOptions& ro) {
+                    const TrackFilterOptions& fo, const RefineOptions& ro, const std::function<void(const std::string&)>& note) {
   const double t_start = steadySeconds();
   RefineResult r;
   r.labels = labels;
@@ -234,7 +234,24 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
   }
   bo.eliminate_motions_first = true;
   bo.trust_region = PlaneBatchOptions::TrustRegion::Dogleg;
+  // Progress: what is being solved, said every ro.progress_seconds (through every copy of `bo`).
+  std::string phase;
+  double next_note = t_start + ro.progress_seconds;
+  if (note)
+    bo.on_iteration = [&](int iteration, double) {
+      const double now = steadySeconds();
+      if (now < next_note) return;
+      next_note = now + ro.progress_seconds;
+      note(fmt::format("refine: {:.0f} s so far; {}: iteration {}", now - t_start, phase, iteration));
+    };
   auto solve = [&](Problem& p, double sigma_px, PlaneBatchResult* out) {
+    std::vector<std::string> free;
+    if (bo.camera_free[0] || bo.camera_free[1]) free.emplace_back("the principal point");
+    if (bo.camera_free[2] || bo.camera_free[3]) free.emplace_back("the distortion");
+    if (bo.readout_free) free.emplace_back("the readout");
+    std::string what = free.empty() ? "the camera held" : "estimating " + free[0];
+    for (std::size_t i = 1; i < free.size(); ++i) what += (i + 1 == free.size() ? " and " : ", ") + free[i];
+    phase = fmt::format("{} tracks, {}", p.data.point_ids.size(), what);
     p.data.sigma_uv = sigma_px / s;
     *out = solvePlaneBatch(p.data, p.start, bo);
     return out->converged;
@@ -657,6 +674,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     ro_opt.max_iterations = 15;
     p.start = st;
     p.data.sigma_uv = sigma_final / s;
+    phase = "the test against a pure rotation";
     const PlaneBatchResult rot = solvePlaneBatch(p.data, p.start, ro_opt);
     double ss_rot = 0;
     for (int k = 0; k < F; ++k)
@@ -706,6 +724,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
     to.max_iterations = 15;
     p.start = st;
     for (auto& R : p.start.R) R.setIdentity();
+    phase = "the test against a translation alone";
     const PlaneBatchResult tr = solvePlaneBatch(p.data, p.start, to);
     double ss_tr = 0;
     for (double x : pooled(residualsPx(p, tr.state, s, true))) ss_tr += x * x;
@@ -770,6 +789,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       PlaneBatchState base = st;
       double ss_base = ss;
       if (po.camera_free != r.camera_free) {
+        phase = "the focal length's profile at the estimate";
         const PlaneBatchResult pr = solvePlaneBatch(p.data, st, po);
         r.iterations += pr.iterations;
         double ssk = 0;
@@ -789,6 +809,7 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
         PlaneBatchState cur = base;
         for (double fk = f * step; fk >= lo / std::sqrt(ratio) && fk <= hi * std::sqrt(ratio); fk *= step) {
           cur.beta = s / fk;
+          phase = fmt::format("the focal length's profile at {:.0f} px", fk);
           const PlaneBatchResult pr = solvePlaneBatch(p.data, cur, po);
           r.iterations += pr.iterations;
           if (!pr.converged) {

@@ -80,6 +80,9 @@ struct PlaneBatchOptions {
   using StopWhen =
       std::function<bool(double beta, const Eigen::Ref<const Eigen::Matrix3Xd>& N, const Eigen::Ref<const Eigen::Matrix2Xd>& ref)>;
   StopWhen stop_when;
+  /// Called after every iteration with Ceres's iteration number (0: the start) and the cost
+  /// then (PlaneBatchResult::final_cost's units): progress for a long solve. Empty: none.
+  std::function<void(int iteration, double cost)> on_iteration;
 };
 
 /// Observations and model structure. frames[0] are the reference-frame observations.

@@ -28,6 +28,7 @@
 #include <Eigen/Core>
 
 #include <array>
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -86,6 +87,10 @@ struct RefineOptions {
   /// plane 9 regions, enough clusters for a sandwich of its 3 normal components and the focal
   /// length, regions large enough to share an error (docs/estimate.md section 4).
   int spatial_grid = 3;
+  /// With a `note` given to refine(): a line on the solve under way once this many seconds have
+  /// passed since the refinement started or since the last such line (the 1200-frame orbit's
+  /// refinement took 15-30 s in silence). <= 0: after every iteration (tests).
+  double progress_seconds = 3.0;
 };
 
 /// The online estimate's final figures against the refinement's (docs/estimate.md section 3,
@@ -196,7 +201,9 @@ struct RefineResult {
 };
 
 /// Refines `online` (the filter's run on `tracks` with `labels` and options `filter`).
+/// `note` (optional) receives progress lines ("refine: 6 s: ..."), RefineOptions::progress_seconds apart.
 RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const TrackFilterResult& online,
-                    const TrackFilterOptions& filter, const RefineOptions& options = {});
+                    const TrackFilterOptions& filter, const RefineOptions& options = {},
+                    const std::function<void(const std::string&)>& note = {});
 
 }  // namespace rsfm
