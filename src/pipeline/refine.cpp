@@ -341,7 +341,9 @@ RefineResult refine(const Tracks& tracks, const std::vector<int>& labels, const 
       res = std::move(res2);
       r.iterations += res.iterations;
       if (res.stopped_early) continue;
-    } else if (res.stopped_early) {
+    }
+    watched = &p;  // p2 goes out of scope
+    if (res.stopped_early) {
       // Stopped, but the rebuild left nothing more out: the solve goes on from there.
       bo.stop_when = nullptr;
       p.start = res.state;
